@@ -1,0 +1,80 @@
+# zensim: one image for every service (router, sim, bridge, viz).
+#
+#   docker build -t zensim:latest .                                       # official python:3.11-slim
+#   docker build --build-arg BASE_IMAGE=zensim-base:bookworm -t zensim:latest .   # offline base, see
+#                                                                          # scripts/build-base-image
+# Works with the classic builder and with BuildKit (no `# syntax=` line, no RUN --mount: nothing to pull).
+#
+# Build args:
+#   BASE_IMAGE       any Debian-like image with python3 >= 3.11 and the venv module
+#   EXTRA_CA_CERTS   PEM text of extra CA certificates that pip must trust during the build (for a
+#                    TLS-intercepting proxy); used only in the `deps` stage, so it does not appear in the
+#                    final image nor its history. Example:
+#                      --build-arg EXTRA_CA_CERTS="$(cat /usr/local/share/ca-certificates/*.crt)"
+#   PIP_INDEX_URL    a PyPI mirror (optional; pip reads it from the environment)
+#
+# Layers of the final image: base | user | venv with the dependencies (changes only when
+# pyproject.toml changes) | the project itself (small; changes with the source).
+ARG BASE_IMAGE=python:3.11-slim
+
+# ---------------------------------------------------------------------------------------------
+# deps: a venv with the runtime dependencies listed in pyproject.toml (and nothing of the source)
+FROM ${BASE_IMAGE} AS deps
+ARG EXTRA_CA_CERTS=""
+ARG PIP_INDEX_URL
+ENV PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1 \
+    PIP_ROOT_USER_ACTION=ignore \
+    PIP_DEFAULT_TIMEOUT=120
+# The build backend (setuptools) goes to /opt/buildtools, outside the runtime venv.
+# A venv, not the system interpreter: Debian's python3 is "externally managed" (PEP 668), the
+# official image's is not; a venv behaves the same on both.
+RUN python3 -m venv /opt/venv
+COPY pyproject.toml /src/pyproject.toml
+RUN set -eu; \
+    if [ -n "$EXTRA_CA_CERTS" ]; then \
+        bundle=$(/opt/venv/bin/python -c 'import pip._vendor.certifi as c; print(c.where())'); \
+        { cat "$bundle"; printf '\n%s\n' "$EXTRA_CA_CERTS"; } > /tmp/ca-bundle.pem; \
+        export PIP_CERT=/tmp/ca-bundle.pem; \
+    fi; \
+    /opt/venv/bin/python -c 'import tomllib; print("\n".join(tomllib.load(open("/src/pyproject.toml", "rb"))["project"]["dependencies"]))' \
+        > /tmp/requirements.txt; \
+    /opt/venv/bin/pip install -r /tmp/requirements.txt; \
+    build_requires=$(/opt/venv/bin/python -c 'import tomllib; print(" ".join(tomllib.load(open("/src/pyproject.toml", "rb"))["build-system"]["requires"]))'); \
+    /opt/venv/bin/pip install --target /opt/buildtools $build_requires wheel; \
+    rm -f /tmp/ca-bundle.pem /tmp/requirements.txt
+
+# ---------------------------------------------------------------------------------------------
+# app: install the project itself (no dependencies, no network) and stage just its files
+FROM deps AS app
+COPY . /src
+# then copy only the files pip installed for zensim (package dirs, dist-info, bin/zensim) to /stage
+RUN set -eu; \
+    PYTHONPATH=/opt/buildtools /opt/venv/bin/pip install --no-index --no-deps --no-build-isolation /src; \
+    /opt/venv/bin/python -c 'if 1: \
+        import importlib.metadata as md, pathlib, shutil; \
+        dist = md.distribution("zensim"); \
+        files = [pathlib.Path(dist.locate_file(f)).resolve() for f in dist.files]; \
+        [(pathlib.Path("/stage", f.relative_to("/")).parent.mkdir(parents=True, exist_ok=True), \
+          shutil.copy2(f, pathlib.Path("/stage", f.relative_to("/")))) for f in files if f.is_file()]'
+
+# ---------------------------------------------------------------------------------------------
+# runtime
+FROM ${BASE_IMAGE} AS runtime
+# Fixed uid/gid so that bind mounts can be chowned predictably.
+# --no-log-init: a high uid would otherwise grow a sparse /var/log/lastlog of ~GBs in the layer.
+RUN groupadd --gid 10001 zensim \
+ && useradd --uid 10001 --gid 10001 --no-log-init --create-home --home-dir /home/zensim \
+            --shell /usr/sbin/nologin zensim
+ENV VIRTUAL_ENV=/opt/venv \
+    PATH=/opt/venv/bin:$PATH \
+    PYTHONUNBUFFERED=1 \
+    PYTHONDONTWRITEBYTECODE=1
+COPY --from=deps /opt/venv /opt/venv
+COPY --from=app /stage/ /
+USER zensim
+WORKDIR /home/zensim
+# 7447: Zenoh (router), 7000: viz web page
+EXPOSE 7447 7000
+ENTRYPOINT ["zensim"]
+CMD ["--help"]

@@ -1,0 +1,179 @@
+"""How fast `zensim viz` gets poses to browsers, and what it costs.
+
+Runs a router, sim (fixed mode), bridge and viz as real processes on
+loopback, then measures:
+
+  1. pose frames per second drawn by a headless chromium (software WebGL:
+     this is the browser's drawing rate, capped by the viz at rate_hz);
+  2. pose frames per second reaching a fast client (a websocket client that
+     acks at once), i.e. the viz's own rate, and the viz's CPU meanwhile;
+  3. slider -> cmd/joints and slider -> first sim state movement latency,
+     driving the slider through the page over the DevTools protocol;
+  4. the viz's resident memory before and after the streaming.
+
+    .venv/bin/python benchmarks/viz_rates.py [--seconds 10] [--rate-hz 60]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import statistics
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO / "tests"))
+
+import zenoh  # noqa: E402
+from tornado.websocket import websocket_connect  # noqa: E402
+
+from browser import Browser  # noqa: E402
+from support import Service, free_port, plain_client, wait_for  # noqa: E402
+from zensim.schemas import Codec, JointState, JointTargets, Keys  # noqa: E402
+
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return 0.0
+
+
+class FastClient:
+    """A websocket client that acks every frame at once: the most a browser could take."""
+
+    def __init__(self, url: str) -> None:
+        self.frames = 0
+        self.loop = asyncio.new_event_loop()
+        self.stop = False
+        self.thread = threading.Thread(target=self.loop.run_until_complete, args=(self._run(url),), daemon=True)
+        self.thread.start()
+
+    async def _run(self, url: str) -> None:
+        ws = await websocket_connect(url, max_message_size=64 * 1024 * 1024)
+        while not self.stop:
+            message = await ws.read_message()
+            if message is None:
+                return
+            if isinstance(message, bytes) and message[0] == 2:
+                self.frames += 1
+                await ws.write_message(json.dumps({"type": "ack"}))
+        ws.close()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, default=10.0, help="length of each rate measurement")
+    parser.add_argument("--rate-hz", type=float, default=60.0, help="the viz's rate_hz")
+    parser.add_argument("--moves", type=int, default=20, help="slider moves for the latency figure")
+    args = parser.parse_args()
+
+    log_dir = Path(tempfile.mkdtemp(prefix="zensim-bench-"))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    robot_id = f"bench{os.getpid()}"
+    keys = Keys(robot_id)
+    base_env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
+    env = dict(base_env, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint)
+    port = free_port()
+    services = [Service("router", [], dict(base_env, ZENSIM_ZENOH_LISTEN=endpoint), log_dir)]
+    results: dict[str, object] = {}
+    try:
+        wait_for(lambda: "router up" in services[0].log(), 15, "router")
+        services.append(Service("sim", ["--mode", "fixed"], env, log_dir))
+        services.append(Service("bridge", [], env, log_dir))
+        viz = Service("viz", ["--port", str(port), "--rate-hz", str(args.rate_hz)], env, log_dir)
+        services.append(viz)
+        wait_for(lambda: "viz up" in viz.log() and "description of" in viz.log(), 30, "viz with a description")
+        with plain_client(endpoint) as session, Browser() as browser:
+            browser.goto(f"http://127.0.0.1:{port}/")
+            browser.wait("window.zensim && zensim.sceneReady", 60, "the robot drawn")
+            rss0 = rss_mb(viz.proc.pid)
+
+            # 1. chromium alone
+            f0, c0, t0 = browser.eval("zensim.framesApplied"), cpu_s(viz.proc.pid), time.monotonic()
+            time.sleep(args.seconds)
+            f1, c1, t1 = browser.eval("zensim.framesApplied"), cpu_s(viz.proc.pid), time.monotonic()
+            results["chromium_frames_per_s"] = round((f1 - f0) / (t1 - t0), 1)
+            results["viz_cpu_pct_chromium_only"] = round(100 * (c1 - c0) / (t1 - t0), 1)
+
+            # 2. a fast client beside chromium
+            fast = FastClient(f"ws://127.0.0.1:{port}/ws")
+            wait_for(lambda: fast.frames > 0, 10, "frames at the fast client")
+            n0, f0, c0, t0 = fast.frames, browser.eval("zensim.framesApplied"), cpu_s(viz.proc.pid), time.monotonic()
+            time.sleep(args.seconds)
+            n1, f1, c1, t1 = fast.frames, browser.eval("zensim.framesApplied"), cpu_s(viz.proc.pid), time.monotonic()
+            results["fast_client_frames_per_s"] = round((n1 - n0) / (t1 - t0), 1)
+            results["chromium_frames_per_s_meanwhile"] = round((f1 - f0) / (t1 - t0), 1)
+            results["viz_cpu_pct_at_rate"] = round(100 * (c1 - c0) / (t1 - t0), 1)
+            fast.stop = True
+
+            # 3. slider latency
+            names = browser.eval("zensim.robot.joints.map(j => j.name)")
+            joint = "left_elbow_joint"
+            index = names.index(joint)
+            events: dict[str, float] = {}
+            state: dict[str, JointState] = {}
+            js_codec, jt_codec = Codec(JointState), Codec(JointTargets)
+
+            def on_cmd(sample: zenoh.Sample) -> None:
+                msg = jt_codec.decode(sample.payload.to_bytes())
+                if joint in msg.names and "cmd" not in events:
+                    events["cmd"] = time.perf_counter()
+
+            def on_state(sample: zenoh.Sample) -> None:
+                msg = js_codec.decode(sample.payload.to_bytes())
+                state["js"] = msg
+                ref = events.get("q_before")
+                if ref is not None and "moved" not in events and abs(msg.q[index] - ref) > 0.005:
+                    events["moved"] = time.perf_counter()
+
+            subs = [session.declare_subscriber(keys.joint_targets, on_cmd),
+                    session.declare_subscriber(keys.joints, on_state)]
+            to_cmd, to_move = [], []
+            wait_for(lambda: "js" in state, 10, "joint states")
+            for i in range(args.moves):
+                target = 0.3 if i % 2 == 0 else 0.8
+                wait_for(lambda: abs(state["js"].q[index] - (0.8 if i % 2 == 0 else 0.3)) < 0.02 or i == 0, 10,
+                         "the joint to settle")
+                time.sleep(0.2)
+                events.clear()
+                events["q_before"] = state["js"].q[index]
+                t_start = time.perf_counter()
+                browser.set_slider(f"slider-{joint}", target)
+                wait_for(lambda: "cmd" in events and "moved" in events, 10, "the move", interval_s=0.001)
+                to_cmd.append(1000 * (events["cmd"] - t_start))
+                to_move.append(1000 * (events["moved"] - t_start))
+            for sub in subs:
+                sub.undeclare()
+
+            def summary(values: list[float]) -> dict[str, float]:
+                ordered = sorted(values)
+                return {"p50_ms": round(statistics.median(ordered), 1),
+                        "p95_ms": round(ordered[min(len(ordered) - 1, int(0.95 * len(ordered)))], 1),
+                        "max_ms": round(ordered[-1], 1)}
+
+            results["slider_to_cmd_joints"] = summary(to_cmd)
+            results["slider_to_sim_motion"] = summary(to_move)
+            results["viz_rss_mb_before_after"] = [round(rss0, 1), round(rss_mb(viz.proc.pid), 1)]
+    finally:
+        for service in reversed(services):
+            service.stop()
+    print(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

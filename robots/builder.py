@@ -1,0 +1,573 @@
+"""Build a simulation-ready MuJoCo model from a URDF and its control.toml.
+
+A URDF describes links and joints only. This module completes it the way the ROS seed's launch files
+did (floating base or a welded base, a floor, PD motors, IMU) and adds what MuJoCo needs to stay
+stable: rotor armature, mass/inertia floors, the implicitfast integrator. Each compile starts from a
+fresh MjSpec because compiling mutates the spec.
+
+Motors follow Unitree LowCmd semantics, tau = kp*(q - q_meas) + kd*(dq - dq_meas) + tau_ff, as a
+MuJoCo `general` actuator with gain 1 and an affine bias [0, -kp, -kd]: MuJoCo then integrates the
+damping term implicitly, which an explicit PD computed in Python cannot do at kd 50 on light joints.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import logging
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Final, Literal
+
+import mujoco
+import numpy as np
+
+from zensim.robots import RobotFiles
+from zensim.robots.control import DEFAULT_ARMATURE_KG_M2, ControlConfig, ModeConfig, first_match, load_control
+
+logger = logging.getLogger(__name__)
+
+Mode = Literal["floating", "fixed"]
+MODES: Final[tuple[Mode, ...]] = ("floating", "fixed")
+
+ACTUATED_TYPES: Final = frozenset({"revolute", "continuous", "prismatic"})
+FREE_JOINT_NAME: Final = "floating_base"
+FLOOR_NAME: Final = "floor"
+SPAWN_CLEARANCE_M: Final = 0.002
+"""Gap left under the lowest point when the spawn height is derived from the model."""
+DEFAULT_KP_PER_EFFORT: Final = 2.0
+"""Default stiffness without a control file: full effort at 0.5 rad of error (kp = 2 * effort)."""
+DEFAULT_KD_RATIO: Final = 0.05
+"""Default damping as a fraction of kp."""
+DEFAULT_KP_NO_EFFORT: Final = 100.0
+"""Default stiffness for joints whose URDF gives no effort limit."""
+
+# Contact bits: robot geoms carry ROBOT_BIT in contype and FLOOR_BIT in conaffinity, the floor both.
+# A pair collides when (contype_a & conaffinity_b) | (contype_b & conaffinity_a), so robot-robot
+# pairs never do (2 & 1 == 0) while robot-floor pairs do.
+FLOOR_BIT: Final = 1
+ROBOT_BIT: Final = 2
+
+_INTEGRATORS: Final = {
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+}
+_SENSORS: Final = {
+    # name: (type, object type, which object: "imu" site or "base" body, dimension)
+    "imu_quat": (mujoco.mjtSensor.mjSENS_FRAMEQUAT, mujoco.mjtObj.mjOBJ_SITE, "imu", 4),
+    "imu_gyro": (mujoco.mjtSensor.mjSENS_GYRO, mujoco.mjtObj.mjOBJ_SITE, "imu", 3),
+    "imu_accel": (mujoco.mjtSensor.mjSENS_ACCELEROMETER, mujoco.mjtObj.mjOBJ_SITE, "imu", 3),
+    # XBODY: the link frame; BODY would report the centre of mass.
+    "base_pos": (mujoco.mjtSensor.mjSENS_FRAMEPOS, mujoco.mjtObj.mjOBJ_XBODY, "base", 3),
+    "base_quat": (mujoco.mjtSensor.mjSENS_FRAMEQUAT, mujoco.mjtObj.mjOBJ_XBODY, "base", 4),
+    "base_linvel": (mujoco.mjtSensor.mjSENS_FRAMELINVEL, mujoco.mjtObj.mjOBJ_XBODY, "base", 3),
+    "base_angvel": (mujoco.mjtSensor.mjSENS_FRAMEANGVEL, mujoco.mjtObj.mjOBJ_XBODY, "base", 3),
+}
+
+
+class RobotModelError(ValueError):
+    """A URDF or control file that cannot be turned into a model; the message names what is wrong."""
+
+
+@dataclass(frozen=True)
+class UrdfJoint:
+    """An actuated joint as the URDF states it (limits in SI units; inf where the URDF gives none)."""
+
+    name: str
+    type: str
+    lower: float
+    upper: float
+    effort: float
+    velocity: float
+
+
+@dataclass(frozen=True)
+class UrdfInfo:
+    """The parts of a URDF the builder needs beyond what MuJoCo's importer keeps."""
+
+    name: str
+    root_link: str
+    links: tuple[str, ...]
+    joints: tuple[UrdfJoint, ...]
+    mesh_filenames: tuple[str, ...]
+
+
+@dataclass
+class Robot:
+    """A compiled robot and everything a simulator needs to drive it, in canonical joint order."""
+
+    model: mujoco.MjModel
+    mode: Mode
+    name: str
+    joint_names: tuple[str, ...]
+    q_min: np.ndarray
+    q_max: np.ndarray
+    effort_limit: np.ndarray
+    velocity_limit: np.ndarray
+    default_q: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+    base_height_m: float
+    qpos_adr: np.ndarray
+    dof_adr: np.ndarray
+    actuator_ids: np.ndarray
+    base_body_id: int
+    control: ControlConfig
+    urdf_path: Path
+    urdf_text: str
+    mesh_files: dict[str, Path]
+    base_link: str = ""
+    imu_site_id: int = -1
+    free_qpos_adr: int = -1
+    """qpos address of the free joint (floating mode), -1 in the fixed mode."""
+    free_dof_adr: int = -1
+    sensor_slices: dict[str, slice] = field(default_factory=dict)
+    """Name -> slice of data.sensordata for the sensors in _SENSORS."""
+    armature: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """Rotor armature per joint, kg m^2, canonical order."""
+    control_path: Path | None = None
+    """The control file used, None for defaults."""
+
+    @property
+    def nu(self) -> int:
+        """Number of actuated joints."""
+        return len(self.joint_names)
+
+
+# --------------------------------------------------------------------------------------------- URDF
+def _float(text: str | None, default: float) -> float:
+    return default if text is None or text.strip() == "" else float(text)
+
+
+def parse_urdf(text: str) -> UrdfInfo:
+    """Read joint order, limits and mesh names from URDF text (the document order is canonical).
+
+    Raises:
+        RobotModelError: Not a URDF, or it has no single root link.
+    """
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise RobotModelError(f"URDF is not valid XML: {exc}") from exc
+    if root.tag != "robot":
+        raise RobotModelError(f"not a URDF: root element is <{root.tag}>, expected <robot>")
+    links = tuple(link.get("name", "") for link in root.findall("link"))
+    children = {j.find("child").get("link") for j in root.findall("joint") if j.find("child") is not None}
+    roots = [name for name in links if name not in children]
+    if len(roots) != 1:
+        raise RobotModelError(f"URDF must have exactly one root link, found {roots}")
+    joints = []
+    for j in root.findall("joint"):
+        jtype = j.get("type", "")
+        if jtype not in ACTUATED_TYPES:
+            continue
+        limit = j.find("limit")
+        get = (lambda key: limit.get(key)) if limit is not None else (lambda key: None)
+        unbounded = jtype == "continuous"
+        effort = _float(get("effort"), 0.0)
+        velocity = _float(get("velocity"), 0.0)
+        joints.append(UrdfJoint(
+            name=j.get("name", ""),
+            type=jtype,
+            lower=-math.inf if unbounded else _float(get("lower"), -math.inf),
+            upper=math.inf if unbounded else _float(get("upper"), math.inf),
+            # URDF uses 0 (or nothing) for "no limit" in practice.
+            effort=effort if effort > 0 else math.inf,
+            velocity=velocity if velocity > 0 else math.inf,
+        ))
+    meshes = tuple(dict.fromkeys(m.get("filename", "") for m in root.iter("mesh")))
+    return UrdfInfo(name=root.get("name", "robot"), root_link=roots[0], links=links, joints=tuple(joints),
+                    mesh_filenames=meshes)
+
+
+def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
+    """Find a URDF mesh file relative to the URDF's own folder (never the working directory).
+
+    Handles plain relative paths, `package://<pkg>/...` (the URDF's folder is taken as the package
+    root, as in a g1_description checkout) and `file://`.
+
+    Raises:
+        FileNotFoundError: No candidate exists; the message lists where it looked.
+    """
+    candidates: list[Path] = []
+    if filename.startswith("package://"):
+        rest = filename[len("package://"):]
+        inner = rest.split("/", 1)[1] if "/" in rest else rest
+        candidates += [urdf_dir / inner, urdf_dir.parent / rest]
+    elif filename.startswith("file://"):
+        candidates.append(Path(filename[len("file://"):]))
+    else:
+        candidates.append(urdf_dir / filename)
+    candidates += [urdf_dir / "meshes" / Path(filename).name, urdf_dir / Path(filename).name]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate.resolve()
+    raise FileNotFoundError(f"mesh {filename!r} not found; looked at {[str(c) for c in candidates]}")
+
+
+# ------------------------------------------------------------------------------------- resolution
+def _default_gains(effort: float) -> tuple[float, float]:
+    kp = DEFAULT_KP_PER_EFFORT * effort if math.isfinite(effort) else DEFAULT_KP_NO_EFFORT
+    return kp, DEFAULT_KD_RATIO * kp
+
+
+def resolve_gains(mode_cfg: ModeConfig, joints: tuple[UrdfJoint, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """kp, kd per joint for one mode: first matching group, else derived from the effort limit."""
+    groups = [(g.joints, (g.kp, g.kd)) for g in mode_cfg.gains]
+    pairs = [first_match(j.name, groups) or _default_gains(j.effort) for j in joints]
+    return np.array([p[0] for p in pairs], float), np.array([p[1] for p in pairs], float)
+
+
+def resolve_pose(control: ControlConfig, joints: tuple[UrdfJoint, ...]) -> np.ndarray:
+    """Default joint positions, clipped into the joint limits (a zero pose may lie outside them)."""
+    groups = [([pattern], value) for pattern, value in control.pose.items()]
+    q = np.array([float(first_match(j.name, groups) or 0.0) for j in joints])
+    lo = np.array([j.lower for j in joints])
+    hi = np.array([j.upper for j in joints])
+    clipped = np.clip(q, lo, hi)
+    for j, before, after in zip(joints, q, clipped):
+        if before != after:
+            logger.warning("default pose of %s (%.3f) is outside its limits; using %.3f", j.name, before, after)
+    return clipped
+
+
+def resolve_armature(control: ControlConfig, joints: tuple[UrdfJoint, ...]) -> np.ndarray:
+    """Armature per joint, kg m^2: first matching group, else DEFAULT_ARMATURE_KG_M2."""
+    groups = [(g.joints, g.value) for g in control.armature]
+    return np.array([float(first_match(j.name, groups) or DEFAULT_ARMATURE_KG_M2) for j in joints])
+
+
+# ------------------------------------------------------------------------------------------- spec
+@dataclass
+class _Prepared:
+    spec: mujoco.MjSpec
+    info: UrdfInfo
+    control: ControlConfig
+    text: str
+    mesh_files: dict[str, Path]
+    base_link: str
+    imu_link: str
+    kp: np.ndarray
+    kd: np.ndarray
+    default_q: np.ndarray
+    armature: np.ndarray
+
+
+def _apply_inertia_floors(spec: mujoco.MjSpec, mass_floor: float, inertia_floor: float) -> None:
+    """Raise mass and principal inertia of bodies that carry a joint to the floors.
+
+    Only moving bodies: MuJoCo's own compiler.boundmass would also give mass to the massless sensor
+    frames (imu_in_pelvis, d435_link) and the 1 g decorative links, adding tens of grams the robot
+    does not have. Raising the diagonal of a full inertia keeps it positive definite.
+    """
+    for body in spec.bodies:
+        if body.name == "world" or not body.joints:
+            continue
+        if body.mass < mass_floor:
+            body.mass = mass_floor
+        if body.explicitinertial and not np.isnan(body.fullinertia[0]):
+            full = np.array(body.fullinertia)
+            full[:3] = np.maximum(full[:3], inertia_floor)
+            body.fullinertia = full
+        else:
+            body.inertia = np.maximum(np.array(body.inertia), inertia_floor)
+
+
+def _prepare(files: RobotFiles, mode: Mode) -> _Prepared:
+    """Load the URDF into a fresh MjSpec and complete it for `mode`."""
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    control = load_control(files.control)
+    text = files.urdf.read_text()
+    info = parse_urdf(text)
+    if not info.joints:
+        raise RobotModelError(f"{files.urdf}: no actuated (revolute/continuous/prismatic) joints")
+    urdf_dir = files.urdf.parent
+    mesh_files = {name: resolve_mesh(name, urdf_dir) for name in info.mesh_filenames}
+    model_cfg = control.model
+    base_link = model_cfg.base_link or info.root_link
+    imu_link = model_cfg.imu_link or base_link
+    for what, link in (("model.base_link", base_link), ("model.imu_link", imu_link)):
+        if link not in info.links:
+            raise RobotModelError(f"{files.control}: {what} = {link!r} is not a link of {files.urdf}")
+    if base_link != info.root_link:
+        raise RobotModelError(f"model.base_link {base_link!r} must be the URDF root link {info.root_link!r}")
+    mode_cfg: ModeConfig = getattr(control, mode)
+
+    spec = mujoco.MjSpec.from_file(str(files.urdf))
+    spec.compiler.discardvisual = True
+    spec.compiler.fusestatic = False  # else the jointless pelvis fuses into the world with its mass
+    spec.compiler.meshdir = str(urdf_dir)
+    _apply_inertia_floors(spec, model_cfg.mass_floor_kg, model_cfg.inertia_floor_kg_m2)
+    # Absolute mesh paths resolved like a viewer resolves them; no path stripping needed then.
+    spec.strippath = False
+    for mesh in spec.meshes:
+        key = mesh.file if mesh.file in mesh_files else next(
+            (k for k in mesh_files if Path(k).name == Path(mesh.file).name), None)
+        if key is None:
+            raise RobotModelError(f"MuJoCo mesh {mesh.file!r} has no match among the URDF meshes")
+        mesh.file = str(mesh_files[key])
+
+    spec.option.timestep = model_cfg.timestep_s
+    spec.option.integrator = _INTEGRATORS[model_cfg.integrator]
+    spec.option.gravity = [0.0, 0.0, -9.81] if mode_cfg.gravity else [0.0, 0.0, 0.0]
+
+    base = spec.body(base_link)
+    base.pos = [0.0, 0.0, mode_cfg.base_height_m or 0.0]
+    if mode == "floating":
+        base.add_freejoint(name=FREE_JOINT_NAME)
+
+    kp, kd = resolve_gains(mode_cfg, info.joints)
+    default_q = resolve_pose(control, info.joints)
+    armature = resolve_armature(control, info.joints)
+    for j, arm, kp_j, kd_j in zip(info.joints, armature, kp, kd):
+        spec.joint(j.name).armature = float(arm)
+        act = spec.add_actuator(name=j.name, target=j.name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        act.gainprm[0] = 1.0
+        # The mode's default gains, so the written MJCF reads as a PD; apply_motor_command rewrites them.
+        act.biasprm[1], act.biasprm[2] = -float(kp_j), -float(kd_j)
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE  # the joint's actfrcrange clips the total
+
+    robot_geoms = list(spec.geoms)
+    for geom in robot_geoms:
+        if not model_cfg.self_collision:
+            geom.contype, geom.conaffinity = ROBOT_BIT, FLOOR_BIT
+        body_name = geom.parent.name
+        if any(fnmatch.fnmatchcase(body_name, p) for p in model_cfg.foot_links):
+            geom.friction = [model_cfg.foot_friction, geom.friction[1], geom.friction[2]]
+
+    world = spec.worldbody
+    world.add_geom(name=FLOOR_NAME, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05],
+                   friction=[model_cfg.floor_friction, 0.005, 0.0001], contype=FLOOR_BIT | ROBOT_BIT,
+                   conaffinity=FLOOR_BIT | ROBOT_BIT, rgba=[0.5, 0.55, 0.6, 1.0])
+    world.add_light(name="sun", pos=[0.0, 0.0, 4.0], dir=[0.0, 0.0, -1.0], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+
+    spec.body(imu_link).add_site(name=model_cfg.imu_site)
+    for name, (stype, otype, which, _dim) in _SENSORS.items():
+        spec.add_sensor(name=name, type=stype, objtype=otype,
+                        objname=model_cfg.imu_site if which == "imu" else base_link)
+    return _Prepared(spec, info, control, text, mesh_files, base_link, imu_link, kp, kd, default_q, armature)
+
+
+def _compile(prepared: _Prepared, files: RobotFiles) -> mujoco.MjModel:
+    try:
+        return prepared.spec.compile()
+    except ValueError as exc:  # MuJoCo raises ValueError for compile errors
+        raise RobotModelError(f"MuJoCo could not compile {files.urdf}: {exc}") from exc
+
+
+def _lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData) -> float:
+    """Lowest z over the robot's collision geoms' bounding boxes (floor excluded)."""
+    lowest = math.inf
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    for g in range(model.ngeom):
+        if model.geom_bodyid[g] == 0:
+            continue
+        centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
+        corners = centre + signs * half
+        world = data.geom_xpos[g] + corners @ data.geom_xmat[g].reshape(3, 3).T
+        lowest = min(lowest, float(world[:, 2].min()))
+    return lowest
+
+
+def build(files: RobotFiles, mode: Mode) -> Robot:
+    """Compile a robot for one mode.
+
+    Args:
+        files: The URDF and control file (see `robot_files`).
+        mode: "floating" (free base on the floor, gravity per control.toml) or "fixed" (base welded
+            at `fixed.base_height_m`, gravity off by default).
+
+    Returns:
+        The compiled robot; its model holds one actuator per actuated joint in URDF order.
+
+    Raises:
+        RobotModelError: Unusable URDF/control content or a MuJoCo compile error.
+        ControlConfigError: A control file that does not decode (names the field).
+        FileNotFoundError: A missing URDF, control or mesh file.
+    """
+    prepared = _prepare(files, mode)
+    model = _compile(prepared, files)
+    info, cfg = prepared.info, prepared.control
+    names = tuple(j.name for j in info.joints)
+    jids = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names])
+    base_body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, prepared.base_link)
+    free_jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, FREE_JOINT_NAME)
+    sensor_slices = {}
+    for name in _SENSORS:
+        sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
+        adr = int(model.sensor_adr[sid])
+        sensor_slices[name] = slice(adr, adr + int(model.sensor_dim[sid]))
+
+    robot = Robot(
+        model=model,
+        mode=mode,
+        name=info.name,
+        joint_names=names,
+        q_min=np.array([j.lower for j in info.joints]),
+        q_max=np.array([j.upper for j in info.joints]),
+        effort_limit=np.array([j.effort for j in info.joints]),
+        velocity_limit=np.array([j.velocity for j in info.joints]),
+        default_q=prepared.default_q,
+        kp=prepared.kp,
+        kd=prepared.kd,
+        base_height_m=0.0,
+        qpos_adr=model.jnt_qposadr[jids].copy(),
+        dof_adr=model.jnt_dofadr[jids].copy(),
+        actuator_ids=np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in names]),
+        base_body_id=base_body_id,
+        control=cfg,
+        urdf_path=files.urdf,
+        urdf_text=prepared.text,
+        mesh_files=prepared.mesh_files,
+        base_link=prepared.base_link,
+        imu_site_id=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, cfg.model.imu_site),
+        free_qpos_adr=int(model.jnt_qposadr[free_jid]) if free_jid >= 0 else -1,
+        free_dof_adr=int(model.jnt_dofadr[free_jid]) if free_jid >= 0 else -1,
+        sensor_slices=sensor_slices,
+        armature=prepared.armature,
+        control_path=files.control,
+    )
+    height = getattr(cfg, mode).base_height_m
+    if height is None:
+        # No height in the control file: stand (or hang) just above the floor in the default pose.
+        data = mujoco.MjData(model)
+        data.qpos[robot.qpos_adr] = robot.default_q
+        if robot.free_qpos_adr >= 0:
+            data.qpos[robot.free_qpos_adr:robot.free_qpos_adr + 3] = 0.0
+        model.body_pos[base_body_id] = 0.0
+        mujoco.mj_kinematics(model, data)
+        height = SPAWN_CLEARANCE_M - _lowest_point_z(model, data)
+        logger.info("%s: no %s.base_height_m, derived %.4f m from the model's lowest point", info.name, mode, height)
+    robot.base_height_m = float(height)
+    _place_base(robot, robot.base_height_m)
+    return robot
+
+
+def _place_base(robot: Robot, height: float) -> None:
+    """Put the base at `height`: the free joint's rest pose (floating) or the weld offset (fixed)."""
+    model = robot.model
+    if robot.free_qpos_adr >= 0:
+        a = robot.free_qpos_adr
+        model.qpos0[a:a + 7] = [0.0, 0.0, height, 1.0, 0.0, 0.0, 0.0]
+        model.body_pos[robot.base_body_id] = 0.0
+    else:
+        model.body_pos[robot.base_body_id] = [0.0, 0.0, height]
+
+
+def mjcf_xml(files: RobotFiles, mode: Mode) -> str:
+    """The completed MJCF for inspection (what `build` compiles), with absolute mesh paths.
+
+    The base height is the control file's, or 0 where the control file leaves it to be derived.
+    """
+    prepared = _prepare(files, mode)
+    _compile(prepared, files)
+    return prepared.spec.to_xml()
+
+
+# -------------------------------------------------------------------------------------- runtime
+def _vector(robot: Robot, name: str, value: object) -> np.ndarray:
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.shape != (robot.nu,):
+        raise ValueError(f"{name} must have {robot.nu} values (one per joint), got {arr.shape[0]}")
+    return arr
+
+
+def apply_motor_command(robot: Robot, data: mujoco.MjData, q: object, dq: object, kp: object, kd: object,
+                        tau: object) -> None:
+    """Set the motor command for the next steps (Unitree LowCmd semantics), in canonical joint order.
+
+    tau_joint = kp*(q - q_meas) + kd*(dq - dq_meas) + tau, clipped to the URDF effort limit. The gains go
+    into the model's affine bias (so MuJoCo integrates the kd term implicitly) and the rest into ctrl.
+    The gains live in `robot.model`: every MjData of this model shares them.
+
+    Raises:
+        ValueError: An argument does not have one value per joint.
+    """
+    q_, dq_, kp_, kd_, tau_ = (_vector(robot, n, v) for n, v in
+                               (("q", q), ("dq", dq), ("kp", kp), ("kd", kd), ("tau", tau)))
+    ids = robot.actuator_ids
+    robot.model.actuator_biasprm[ids, 1] = -kp_
+    robot.model.actuator_biasprm[ids, 2] = -kd_
+    data.ctrl[ids] = kp_ * q_ + kd_ * dq_ + tau_
+
+
+def reset(robot: Robot, data: mujoco.MjData, q: np.ndarray | None = None, base_height_m: float | None = None) -> None:
+    """Reset to a pose held by the default gains, then mj_forward so sensors are current.
+
+    Args:
+        robot: The robot.
+        data: Its MjData.
+        q: Joint positions (canonical order); default: `robot.default_q`.
+        base_height_m: Base height; default: `robot.base_height_m`. In the fixed mode this moves the
+            weld, which is part of the model.
+    """
+    q_ = robot.default_q.copy() if q is None else _vector(robot, "q", q)
+    height = robot.base_height_m if base_height_m is None else float(base_height_m)
+    mujoco.mj_resetData(robot.model, data)
+    _place_base(robot, height)
+    if robot.free_qpos_adr >= 0:
+        a = robot.free_qpos_adr
+        data.qpos[a:a + 7] = [0.0, 0.0, height, 1.0, 0.0, 0.0, 0.0]
+    data.qpos[robot.qpos_adr] = q_
+    zeros = np.zeros(robot.nu)
+    apply_motor_command(robot, data, q_, zeros, robot.kp, robot.kd, zeros)
+    mujoco.mj_forward(robot.model, data)
+
+
+def _rotate_to_body(quat_wxyz: np.ndarray, vec_world: np.ndarray) -> np.ndarray:
+    conj = np.array([quat_wxyz[0], -quat_wxyz[1], -quat_wxyz[2], -quat_wxyz[3]])
+    out = np.zeros(3)
+    mujoco.mju_rotVecQuat(out, vec_world, conj)
+    return out
+
+
+def read_base(robot: Robot, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Base link frame (XBODY, not the centre of mass) state from sensors.
+
+    Sensors are computed before integration: call mj_forward after mj_step for current values.
+
+    Returns:
+        pos (3, world, m), quat_wxyz (4), lin_vel_world (3, m/s), ang_vel_body (3, rad/s).
+    """
+    s = data.sensordata
+    quat = s[robot.sensor_slices["base_quat"]].copy()
+    ang_world = s[robot.sensor_slices["base_angvel"]]
+    return (s[robot.sensor_slices["base_pos"]].copy(), quat, s[robot.sensor_slices["base_linvel"]].copy(),
+            _rotate_to_body(quat, ang_world))
+
+
+def read_imu(robot: Robot, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """IMU readings from the site at the IMU link.
+
+    Returns:
+        quat_wxyz (4, world from IMU), gyro_body (3, rad/s), accel_body (3, m/s^2, includes -gravity
+        as a real accelerometer does: +9.81 up when at rest).
+    """
+    s = data.sensordata
+    return (s[robot.sensor_slices["imu_quat"]].copy(), s[robot.sensor_slices["imu_gyro"]].copy(),
+            s[robot.sensor_slices["imu_accel"]].copy())
+
+
+def base_tilt_rad(robot: Robot, data: mujoco.MjData) -> float:
+    """Angle between the base's z axis and the world's z axis, rad (0 upright, pi upside down)."""
+    w, x, y, z = data.sensordata[robot.sensor_slices["base_quat"]]
+    norm2 = w * w + x * x + y * y + z * z
+    cos_tilt = 1.0 - 2.0 * (x * x + y * y) / norm2
+    return float(math.acos(max(-1.0, min(1.0, cos_tilt))))
+
+
+def is_fallen(robot: Robot, data: mujoco.MjData) -> bool:
+    """Whether the base tilt exceeds the control file's `model.fall_tilt_rad`."""
+    return base_tilt_rad(robot, data) > robot.control.model.fall_tilt_rad
+
+
+def warnings_of(data: mujoco.MjData) -> dict[str, int]:
+    """MuJoCo runtime warnings raised so far, by name (empty when the run was clean)."""
+    return {mujoco.mjtWarning(i).name: int(data.warning[i].number)
+            for i in range(len(data.warning)) if data.warning[i].number}

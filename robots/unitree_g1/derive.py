@@ -1,0 +1,200 @@
+"""Derive the project's own G1 URDF from Unitree's official g1_29dof.urdf.
+
+A developer tool, run by hand (the product never reads the official files):
+
+    python robots/unitree_g1/derive.py /path/to/g1_description/g1_29dof.urdf \
+        > robots/unitree_g1/g1_29dof.urdf
+
+Why: the official model needs 19 MB of STL meshes that a fresh machine does not have. This script keeps
+the real robot's figures verbatim (joints, limits, masses, inertias, sensor frames) and replaces each
+mesh with one primitive sized from that mesh's bounding box in its link frame, so the robot still reads
+as a humanoid in a viewer and still stands on the same feet:
+
+- limb segments ("bones": thigh, shin, upper arm, forearm) become cylinders from the link origin to
+  the child joint, with the radius that covers most mesh vertices around that axis;
+- the head becomes a sphere; everything else a box equal to the mesh bounding box;
+- each foot is the bounding box of the official foot mesh, whose sole (z = -0.035 in the ankle roll
+  frame) is also where the official model's foot contact spheres end, so pelvis heights match;
+- decorative fixed links of 1 g (pelvis contour, logo, waist support) are dropped and their boxes
+  folded into the parent's geometry where they give it its shape (the pelvis).
+
+Only numpy and the standard library are used (a 30-line STL reader instead of trimesh).
+"""
+
+from __future__ import annotations
+
+import argparse
+import struct
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+#: Fixed links that carry only a decorative mesh and 1 g: dropped from our model.
+DROPPED_LINKS: frozenset[str] = frozenset({"pelvis_contour_link", "logo_link", "waist_support_link"})
+#: Links whose mesh bounding box is merged into another link's primitive (same frame: identity joint).
+MERGED_INTO: dict[str, str] = {"pelvis_contour_link": "pelvis"}
+#: Links drawn as a cylinder from the link origin to this child joint.
+BONES: dict[str, str] = {
+    "left_hip_yaw_link": "left_knee_joint",
+    "right_hip_yaw_link": "right_knee_joint",
+    "left_knee_link": "left_ankle_pitch_joint",
+    "right_knee_link": "right_ankle_pitch_joint",
+    "left_shoulder_roll_link": "left_shoulder_yaw_joint",
+    "right_shoulder_roll_link": "right_shoulder_yaw_joint",
+    "left_shoulder_yaw_link": "left_elbow_joint",
+    "right_shoulder_yaw_link": "right_elbow_joint",
+    "left_elbow_link": "left_wrist_roll_joint",
+    "right_elbow_link": "right_wrist_roll_joint",
+}
+SPHERES: frozenset[str] = frozenset({"head_link"})
+
+
+def read_stl(path: Path) -> np.ndarray:
+    """Return the (N, 3) vertices of a binary or ASCII STL file.
+
+    Binary files may also start with "solid", so the size check decides, not the header.
+    """
+    data = path.read_bytes()
+    if len(data) >= 84:
+        (count,) = struct.unpack_from("<I", data, 80)
+        if len(data) == 84 + 50 * count:
+            tri = np.dtype([("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+            return np.frombuffer(data, tri, count=count, offset=84)["v"].reshape(-1, 3).astype(float)
+    rows = [line.split()[1:4] for line in data.decode("ascii").splitlines() if line.strip().startswith("vertex")]
+    return np.asarray(rows, dtype=float)
+
+
+def rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:
+    """URDF fixed-axis roll-pitch-yaw to a rotation matrix (R = Rz(y) Ry(p) Rx(r))."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def matrix_to_rpy(m: np.ndarray) -> np.ndarray:
+    """Inverse of rpy_to_matrix (away from pitch = +-90 degrees, which bones here never reach)."""
+    return np.array([np.arctan2(m[2, 1], m[2, 2]), -np.arcsin(np.clip(m[2, 0], -1, 1)), np.arctan2(m[1, 0], m[0, 0])])
+
+
+def _vec(text: str | None) -> np.ndarray:
+    return np.zeros(3) if text is None else np.array([float(v) for v in text.split()])
+
+
+def _fmt(values: np.ndarray) -> str:
+    return " ".join(f"{v:.5f}".rstrip("0").rstrip(".") if abs(v) >= 5e-6 else "0" for v in values)
+
+
+def _xml(element: ET.Element, level: int) -> str:
+    """Serialise an element copied from the official file with the project's indentation."""
+    ET.indent(element, space="  ", level=level)
+    element.tail = None
+    return "  " * level + ET.tostring(element, encoding="unicode").replace(" />", "/>")
+
+
+def link_vertices(link: ET.Element, mesh_root: Path) -> np.ndarray | None:
+    """Vertices of the link's visual meshes, expressed in the link frame."""
+    chunks = []
+    for visual in link.findall("visual"):
+        mesh = visual.find("geometry/mesh")
+        if mesh is None:
+            continue
+        verts = read_stl(mesh_root / mesh.get("filename", ""))
+        origin = visual.find("origin")
+        xyz = _vec(origin.get("xyz") if origin is not None else None)
+        rpy = _vec(origin.get("rpy") if origin is not None else None)
+        chunks.append(verts @ rpy_to_matrix(rpy).T + xyz)
+    return np.vstack(chunks) if chunks else None
+
+
+def primitive(name: str, verts: np.ndarray, child_joint_xyz: np.ndarray | None) -> tuple[str, np.ndarray, np.ndarray]:
+    """Choose a primitive for one link: (geometry element text, origin xyz, origin rpy)."""
+    lo, hi = verts.min(axis=0), verts.max(axis=0)
+    if child_joint_xyz is not None:
+        length = float(np.linalg.norm(child_joint_xyz))
+        axis = child_joint_xyz / length
+        along = verts @ axis
+        inside = verts[(along > 0.0) & (along < length)]
+        perp = inside - np.outer(inside @ axis, axis)
+        radius = float(np.percentile(np.linalg.norm(perp, axis=1), 70))
+        # Build a frame whose z is the bone axis: URDF cylinders extend along their local z.
+        helper = np.array([1.0, 0, 0]) if abs(axis[0]) < 0.9 else np.array([0, 1.0, 0])
+        x = np.cross(helper, axis)
+        x /= np.linalg.norm(x)
+        frame = np.column_stack([x, np.cross(axis, x), axis])
+        rpy = matrix_to_rpy(frame)
+        if not np.allclose(rpy_to_matrix(rpy)[:, 2], axis, atol=1e-6):
+            raise ValueError(f"{name}: bone axis does not round-trip through rpy")
+        return f'<cylinder radius="{radius:.4f}" length="{length:.4f}"/>', child_joint_xyz / 2, rpy
+    centre, size = (lo + hi) / 2, hi - lo
+    if name in SPHERES:
+        return f'<sphere radius="{float(np.mean(size)) / 2:.4f}"/>', centre, np.zeros(3)
+    return f'<box size="{_fmt(size)}"/>', centre, np.zeros(3)
+
+
+def derive(official_urdf: Path) -> str:
+    """Return the text of the project's G1 URDF derived from the official one."""
+    root = ET.parse(official_urdf).getroot()
+    mesh_root = official_urdf.parent
+    links = {link.get("name"): link for link in root.findall("link")}
+    joints = root.findall("joint")
+    child_joint = {link: joint for link, joint in BONES.items()}
+    joint_by_name = {j.get("name"): j for j in joints}
+
+    verts_by_link: dict[str, np.ndarray] = {}
+    for name, link in links.items():
+        verts = link_vertices(link, mesh_root)
+        if verts is not None:
+            verts_by_link[name] = verts
+    for src, dst in MERGED_INTO.items():
+        verts_by_link[dst] = np.vstack([verts_by_link[dst], verts_by_link[src]])
+
+    out = [
+        "<?xml version=\"1.0\"?>",
+        "<!-- Generated by robots/unitree_g1/derive.py from Unitree's g1_29dof.urdf (unitree_ros d6f13aa,",
+        "     robots/g1_description, BSD-3-Clause, see LICENSE). Figures are the official ones; the geometry",
+        "     is the project's own primitives sized from the official meshes. Do not edit by hand. -->",
+        f'<robot name="{root.get("name")}">',
+        '  <material name="dark"><color rgba="0.2 0.2 0.2 1"/></material>',
+        '  <material name="white"><color rgba="0.7 0.7 0.7 1"/></material>',
+    ]
+    for element in root:
+        name = element.get("name", "")
+        if element.tag == "link" and name not in DROPPED_LINKS:
+            out.append(f'  <link name="{name}">')
+            inertial = element.find("inertial")
+            if inertial is not None:
+                out.append(_xml(inertial, 2))
+            if name in verts_by_link:
+                bone_xyz = None
+                if name in child_joint:
+                    bone_xyz = _vec(joint_by_name[child_joint[name]].find("origin").get("xyz"))
+                geom, xyz, rpy = primitive(name, verts_by_link[name], bone_xyz)
+                visual = element.find("visual/material")
+                material = visual.get("name") if visual is not None else "white"
+                origin = f'<origin xyz="{_fmt(xyz)}" rpy="{_fmt(rpy)}"/>'
+                out.append(f"    <visual>{origin}<geometry>{geom}</geometry><material name=\"{material}\"/></visual>")
+                out.append(f"    <collision>{origin}<geometry>{geom}</geometry></collision>")
+            out.append("  </link>")
+        elif element.tag == "joint" and element.find("child").get("link") not in DROPPED_LINKS:
+            out.append(_xml(element, 1))
+    out.append("</robot>")
+    return "\n".join(out) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: derive.py OFFICIAL_URDF > g1_29dof.urdf."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("official_urdf", type=Path)
+    args = parser.parse_args(argv)
+    sys.stdout.write(derive(args.official_urdf.resolve()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

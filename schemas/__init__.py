@@ -1,0 +1,38 @@
+"""The wire contract: message structs, key expressions and codecs.
+
+Depends on msgspec only (no zenoh, no mujoco, no numpy), so any Python client
+can use it without the simulator's dependencies.
+"""
+
+from .codec import JSON, MSGPACK, Codec, DecodeError, decode_scalar, encoding_of, is_json
+from .keys import DEFAULT_ROBOT_ID, KEY_TABLE, ROOT, Keys, check_robot_id
+from .messages import (
+    SCHEMA_VERSION,
+    WIRE_TYPES,
+    BridgeReport,
+    CtlReply,
+    Gains,
+    Imu,
+    JointState,
+    JointTargets,
+    KeyInfo,
+    Message,
+    Mode,
+    ModeRequest,
+    MotorCommand,
+    Odometry,
+    PauseRequest,
+    ResetRequest,
+    ResumeRequest,
+    RobotInfo,
+    SimStatus,
+    StepRequest,
+)
+
+__all__ = [
+    "JSON", "MSGPACK", "Codec", "DecodeError", "decode_scalar", "encoding_of", "is_json",
+    "DEFAULT_ROBOT_ID", "KEY_TABLE", "ROOT", "Keys", "check_robot_id",
+    "SCHEMA_VERSION", "WIRE_TYPES", "BridgeReport", "CtlReply", "Gains", "Imu", "JointState",
+    "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",
+    "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
+]

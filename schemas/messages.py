@@ -1,0 +1,387 @@
+"""Every message that travels between zensim services, as msgspec Structs.
+
+The field names are the public wire contract: clients in Rust, C or the zenoh
+command line read them by name, so a field is never renamed or retyped. New
+fields go at the end with a default (old readers skip them, new readers fill
+them in); a breaking change gets a new key. See docs/protocol.md.
+
+Units are SI, angles radians, quaternions scalar-first (`quat_wxyz`). Joint
+vectors are in the robot's canonical joint order (`RobotInfo.joint_names`)
+unless a message carries `names`.
+
+Commands and control requests validate themselves on decode
+(`__post_init__`): a NaN, an infinity or vectors of mismatched lengths raise
+`msgspec.ValidationError` naming the field, so nothing invalid reaches a
+service. Checks that need the robot (joint names, vector length against the
+joint count, limits) belong to the service that knows the robot.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import msgspec
+
+SCHEMA_VERSION = 1
+"""Bumped only for a breaking change, which also gets new keys."""
+
+Mode = Literal["floating", "fixed"]
+Vector = tuple[float, ...]
+
+MAX_STEPS_PER_REQUEST = 100_000
+
+
+class Message(msgspec.Struct, frozen=True, kw_only=True, tag_field="type"):
+    """Base of every wire struct.
+
+    `type` carries an explicit, stable tag so renaming a class never changes
+    the wire format. Readers do not need it: the key says the type, so a JSON
+    input may leave it out. Unknown fields are ignored so old readers survive
+    new writers.
+    """
+
+
+def _check_finite(field: str, values: Vector | None) -> None:
+    if values is None:
+        return
+    for i, value in enumerate(values):
+        if not math.isfinite(value):
+            raise ValueError(f"`{field}[{i}]` must be a finite number, got {value}")
+
+
+def _check_length(field: str, values: tuple | None, expected: int, against: str) -> None:
+    if values is not None and len(values) != expected:
+        raise ValueError(
+            f"`{field}` has {len(values)} values but `{against}` has {expected}"
+        )
+
+
+def _check_non_negative(field: str, values: Vector | None) -> None:
+    if values is None:
+        return
+    for i, value in enumerate(values):
+        if value < 0:
+            raise ValueError(f"`{field}[{i}]` must be >= 0, got {value}")
+
+
+def _check_unique(field: str, names: tuple[str, ...] | None) -> None:
+    if names is not None and len(set(names)) != len(names):
+        raise ValueError(f"`{field}` names a joint more than once")
+
+
+# --- state: sim -> anyone -------------------------------------------------
+
+
+class JointState(Message, tag="joint_state", kw_only=True):
+    """Measured joint positions, velocities and torques at one sim instant."""
+
+    sim_time_s: float
+    """Simulation time this state describes, s."""
+    seq: int
+    """Counts up by one per published state; resets only when the sim restarts."""
+    q: Vector
+    """Joint positions, rad (m for prismatic joints)."""
+    dq: Vector
+    """Joint velocities, rad/s."""
+    tau: Vector
+    """Actuator torques applied in the last step, N m."""
+
+
+class Odometry(Message, tag="odometry", kw_only=True):
+    """Ground-truth pose and twist of the base link (the pelvis frame, not its centre of mass)."""
+
+    sim_time_s: float
+    """Simulation time this state describes, s."""
+    seq: int
+    """Counts up by one per published message."""
+    pos: Vector
+    """Base position [x, y, z] in the world frame, m."""
+    quat_wxyz: Vector
+    """Base orientation in the world frame, scalar first."""
+    lin_vel_world: Vector
+    """Base linear velocity in the world frame, m/s."""
+    ang_vel_body: Vector
+    """Base angular velocity in the base frame, rad/s."""
+
+
+class Imu(Message, tag="imu", kw_only=True):
+    """What the robot's IMU measures (site `imu_in_pelvis` on the G1)."""
+
+    sim_time_s: float
+    """Simulation time this state describes, s."""
+    seq: int
+    """Counts up by one per published message."""
+    quat_wxyz: Vector
+    """IMU orientation in the world frame, scalar first."""
+    gyro: Vector
+    """Angular velocity in the IMU frame, rad/s."""
+    accel: Vector
+    """Specific force in the IMU frame (reads +9.81 on z at rest), m/s^2."""
+
+
+class SimStatus(Message, tag="sim_status", kw_only=True):
+    """The sim's health, about 10 times a second."""
+
+    sim_time_s: float
+    """Simulation time, s."""
+    rtf: float
+    """Real-time factor achieved over the last status period (sim s per wall s)."""
+    paused: bool
+    """True while the physics is paused (ctl/pause)."""
+    mode: Mode
+    """`floating` (free base, gravity on) or `fixed` (base welded, gravity off)."""
+    fallen: bool
+    """True while the base tilts past the robot's fall threshold."""
+    rejected_commands: int = 0
+    """Commands on cmd/motors rejected since start (malformed, NaN, unknown joint, ...)."""
+    clamped_commands: int = 0
+    """Accepted commands whose targets were clamped to the joint limits."""
+    command_age_s: float | None = None
+    """Wall time since the newest accepted command, s; null before the first one."""
+    watchdog: bool = False
+    """True while no command came within the watchdog timeout and the sim holds its safe pose."""
+    last_error: str | None = None
+    """Why the most recent command was rejected, if one was."""
+    seq: int = 0
+    """Counts up by one per published status."""
+    steps: int = 0
+    """Physics steps taken since the last reset."""
+    timestep_s: float = 0.0
+    """Physics step, s."""
+    target_rtf: float = 1.0
+    """Requested real-time factor (0 means as fast as possible)."""
+    step_jitter_p99_s: float = 0.0
+    """99th percentile of |actual - scheduled| step start over the last status period, s."""
+    resets: int = 0
+    """Resets since start (ctl/reset, mode switches, automatic fall resets)."""
+
+
+# --- commands -------------------------------------------------------------
+
+
+class MotorCommand(Message, tag="motor_command", kw_only=True):
+    """Motor targets with Unitree LowCmd semantics, applied at every physics step.
+
+    tau = kp * (q - q_meas) + kd * (dq - dq_meas) + tau_ff. Without `names`
+    the vectors cover every joint in canonical order; with `names` only those
+    joints change and the rest keep their previous command. Absent `dq` and
+    `tau` are 0; absent `kp` and `kd` are the robot's gains for the current mode.
+    """
+
+    q: Vector
+    """Target positions, rad."""
+    names: tuple[str, ...] | None = None
+    """Joints the vectors address, in their order; null means all, in canonical order."""
+    dq: Vector | None = None
+    """Target velocities, rad/s (default 0)."""
+    kp: Vector | None = None
+    """Position gains, N m/rad (default: configured gains)."""
+    kd: Vector | None = None
+    """Velocity gains, N m s/rad (default: configured gains)."""
+    tau: Vector | None = None
+    """Feed-forward torques, N m (default 0)."""
+
+    def __post_init__(self) -> None:
+        _check_unique("names", self.names)
+        if self.names is not None:
+            _check_length("q", self.q, len(self.names), "names")
+        for field in ("dq", "kp", "kd", "tau"):
+            _check_length(field, getattr(self, field), len(self.q), "q")
+        for field in ("q", "dq", "kp", "kd", "tau"):
+            _check_finite(field, getattr(self, field))
+        _check_non_negative("kp", self.kp)
+        _check_non_negative("kd", self.kd)
+
+
+class JointTargets(Message, tag="joint_targets", kw_only=True):
+    """Position targets for some joints (sliders, scripts); the bridge holds the rest."""
+
+    names: tuple[str, ...]
+    """Joints to move."""
+    q: Vector
+    """Target positions for `names`, rad."""
+    dq: Vector | None = None
+    """Target velocities for `names`, rad/s (default 0)."""
+
+    def __post_init__(self) -> None:
+        _check_unique("names", self.names)
+        _check_length("q", self.q, len(self.names), "names")
+        _check_length("dq", self.dq, len(self.names), "names")
+        _check_finite("q", self.q)
+        _check_finite("dq", self.dq)
+
+
+class BridgeReport(Message, tag="bridge_report", kw_only=True):
+    """The bridge's verdict on one input it rejected or changed (clamped)."""
+
+    key: str
+    """Key expression the input arrived on."""
+    accepted: bool
+    """False: nothing of the input was applied. True: applied, with `clamped` joints limited."""
+    error: str | None = None
+    """Why the input was rejected."""
+    clamped: tuple[str, ...] = ()
+    """Joints whose targets were clamped to their limits."""
+    rejected_total: int = 0
+    """Inputs rejected since the bridge started."""
+    clamped_total: int = 0
+    """Inputs clamped since the bridge started."""
+
+
+# --- control requests (queryables on the sim) -----------------------------
+
+
+class ResetRequest(Message, tag="reset_request", kw_only=True):
+    """Reset the robot. Everything is optional: an empty request resets to the default pose."""
+
+    q: Vector | None = None
+    """Joint pose, canonical order (or `names` order); default: the robot's default pose."""
+    names: tuple[str, ...] | None = None
+    """Joints `q` addresses; the others take their default position."""
+    base_height_m: float | None = None
+    """Base height, m; default: the mode's spawn height."""
+    mode: Mode | None = None
+    """Switch to this mode while resetting; default: keep the current mode."""
+
+    def __post_init__(self) -> None:
+        _check_unique("names", self.names)
+        if self.names is not None:
+            if self.q is None:
+                raise ValueError("`names` given without `q`")
+            _check_length("q", self.q, len(self.names), "names")
+        _check_finite("q", self.q)
+        if self.base_height_m is not None:
+            _check_finite("base_height_m", (self.base_height_m,))
+
+
+class PauseRequest(Message, tag="pause_request", kw_only=True):
+    """Stop stepping the physics; states keep being published."""
+
+
+class ResumeRequest(Message, tag="resume_request", kw_only=True):
+    """Start stepping again after a pause."""
+
+
+class StepRequest(Message, tag="step_request", kw_only=True):
+    """Advance a paused sim by `n` steps; the reply comes after they ran."""
+
+    n: int = 1
+    """Number of physics steps, 1..100000."""
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.n <= MAX_STEPS_PER_REQUEST:
+            raise ValueError(f"`n` must be in 1..{MAX_STEPS_PER_REQUEST}, got {self.n}")
+
+
+class ModeRequest(Message, tag="mode_request", kw_only=True):
+    """Switch between floating and fixed base; rebuilds the model and resets."""
+
+    mode: Mode
+    """The new mode."""
+
+
+class CtlReply(Message, tag="ctl_reply", kw_only=True):
+    """The answer to every ctl request."""
+
+    ok: bool
+    """True when the request was carried out."""
+    error: str | None = None
+    """Why not, when `ok` is false."""
+    sim_time_s: float = 0.0
+    """Simulation time after the request, s."""
+    paused: bool = False
+    """Paused after the request."""
+    mode: Mode = "floating"
+    """Mode after the request."""
+    steps: int = 0
+    """Physics steps since the last reset, after the request."""
+
+
+# --- description -----------------------------------------------------------
+
+
+class Gains(Message, tag="gains", kw_only=True):
+    """Per-joint PD gains in canonical order."""
+
+    kp: Vector
+    """Position gains, N m/rad."""
+    kd: Vector
+    """Velocity gains, N m s/rad."""
+
+
+class KeyInfo(Message, tag="key_info", kw_only=True):
+    """One row of the protocol table."""
+
+    key: str
+    """Full key expression (may hold a `{placeholder}` chunk)."""
+    kind: Literal["publication", "queryable", "liveliness"]
+    """How the key is used."""
+    message: str
+    """Message type name (the struct's tag), or `float` for a bare number."""
+    writer: str
+    """Who writes (or serves) it."""
+    reader: str
+    """Who reads it."""
+    rate: str
+    """Nominal rate or `on demand`."""
+
+
+class RobotInfo(Message, tag="robot_info", kw_only=True):
+    """Everything a client needs to talk to this robot, served on info/robot."""
+
+    robot: str
+    """Robot id, the `{robot}` chunk of every key."""
+    model: str
+    """Name of the robot description (the URDF's robot name)."""
+    schema_version: int
+    """SCHEMA_VERSION of the serving process."""
+    joint_names: tuple[str, ...]
+    """Canonical joint order of every vector."""
+    q_min: Vector
+    """Lower joint limits, rad."""
+    q_max: Vector
+    """Upper joint limits, rad."""
+    effort_limit: Vector
+    """Torque limits, N m."""
+    velocity_limit: Vector
+    """Velocity limits from the description, rad/s (not enforced by the physics)."""
+    default_q: dict[str, Vector]
+    """Default pose per mode."""
+    gains: dict[str, Gains]
+    """Configured gains per mode."""
+    base_height_m: dict[str, float]
+    """Spawn height (floating) and base height (fixed) per mode, m."""
+    mode: Mode
+    """Current mode."""
+    timestep_s: float
+    """Physics step, s."""
+    state_rate_hz: float
+    """Rate of state/joints, state/odom and state/imu, Hz."""
+    status_rate_hz: float
+    """Rate of state/sim, Hz."""
+    watchdog_timeout_s: float
+    """Silence on cmd/motors after which the sim holds its safe pose, s."""
+    mesh_paths: tuple[str, ...] = ()
+    """Mesh files the URDF names, each served on info/mesh/{path}."""
+    keys: tuple[KeyInfo, ...] = ()
+    """The protocol table."""
+
+
+WIRE_TYPES: tuple[type[Message], ...] = (
+    JointState,
+    Odometry,
+    Imu,
+    SimStatus,
+    MotorCommand,
+    JointTargets,
+    BridgeReport,
+    ResetRequest,
+    PauseRequest,
+    ResumeRequest,
+    StepRequest,
+    ModeRequest,
+    CtlReply,
+    RobotInfo,
+)
+"""Every top-level message type, in the order the docs list them."""

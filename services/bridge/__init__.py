@@ -1,0 +1,1 @@
+"""`zensim bridge`: joint targets (sliders, scripts) -> motor commands for the sim, held at a fixed rate."""

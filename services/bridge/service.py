@@ -1,0 +1,225 @@
+"""The bridge's zenoh wiring: joint targets in, motor commands out at a fixed rate.
+
+Reads:
+    {robot}/cmd/joints          JointTargets (msgpack or JSON), partial, merged into the held targets
+    {robot}/cmd/joint/{joint}   a bare number (JSON, plain text or msgpack) for one joint
+    {robot}/state/sim           SimStatus: `mode` and `resets` (a change -> hold the default pose)
+    {robot}/info/robot          RobotInfo, queried at start until the sim answers
+Writes:
+    {robot}/cmd/motors          MotorCommand (q, dq, kp, kd of the current mode) at rate_hz
+    {robot}/state/targets       JointTargets, every joint, the commanded q, at targets_rate_hz
+    {robot}/report/bridge       BridgeReport per rejected or clamped input
+    {robot}/alive/bridge        liveliness token, once the robot is known
+
+The rules (validation, clamping, slew limit, resets) live in targets.py.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import zenoh
+
+from zensim.common.logs import RateLimitedLog
+from zensim.common.pacing import Pacer
+from zensim.common.wire import TypedPublisher, payload_of
+from zensim.schemas import (
+    BridgeReport,
+    Codec,
+    DecodeError,
+    JointTargets,
+    Keys,
+    MotorCommand,
+    RobotInfo,
+    SimStatus,
+    decode_scalar,
+)
+
+from .settings import BridgeSettings
+from .targets import HeldTargets, RobotModel, RobotModelError, Verdict
+
+logger = logging.getLogger("zensim.bridge")
+
+RETRY_PAUSE_S = 0.2
+"""Pause between info/robot queries that found no sim."""
+
+
+def fetch_model(session: zenoh.Session, keys: Keys, timeout_s: float, stop: threading.Event) -> RobotModel | None:
+    """Ask the sim's info/robot until it answers with a usable description.
+
+    Returns:
+        The robot, or None when `stop` was set first.
+    """
+    codec = Codec(RobotInfo)
+    waiting = RateLimitedLog(logger, 10.0)
+    while not stop.is_set():
+        for reply in session.get(keys.robot_info, timeout=timeout_s):
+            if reply.ok is None:
+                waiting.warning("info/robot answered an error: %s", reply.err.payload.to_string())
+                continue
+            try:
+                return RobotModel.from_info(codec.decode(*payload_of(reply.ok)))
+            except (DecodeError, RobotModelError) as exc:
+                waiting.warning("unusable RobotInfo on %s: %s", keys.robot_info, exc)
+        waiting.warning("no sim answers on %s yet; retrying", keys.robot_info)
+        stop.wait(RETRY_PAUSE_S)
+    return None
+
+
+class Bridge:
+    """The running bridge: callbacks merge inputs into the held targets, `tick` publishes.
+
+    Callbacks run on zenoh's threads. Each decodes, validates and merges its input into
+    the held targets under one lock and returns: the held targets are the latest value, so
+    nothing ever queues behind old samples, and two partial inputs that arrive between two
+    ticks (two sliders) are both kept, which a keep-the-last-sample buffer would not do.
+    """
+
+    def __init__(self, session: zenoh.Session, keys: Keys, model: RobotModel, settings: BridgeSettings) -> None:
+        self._keys = keys
+        self._held = HeldTargets(model, settings.slew_rad_s)
+        self._lock = threading.Lock()
+        self._rejected_total = 0
+        self._clamped_total = 0
+        self._targets_codec = Codec(JointTargets)
+        self._status_codec = Codec(SimStatus)
+        self._reject_log = RateLimitedLog(logger, 1.0)
+        self._clamp_log = RateLimitedLog(logger, 1.0)
+        self._status_log = RateLimitedLog(logger, 5.0)
+        self._gains: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
+            mode: (tuple(model.kp[mode].tolist()), tuple(model.kd[mode].tolist())) for mode in model.kp
+        }
+        self._motors = TypedPublisher(session, keys.motors, MotorCommand)
+        self._targets = TypedPublisher(session, keys.bridge_targets, JointTargets)
+        self._reports = TypedPublisher(session, keys.bridge_report, BridgeReport)
+        self._subscribers = [
+            session.declare_subscriber(keys.joint_targets, self._on_targets),
+            session.declare_subscriber(keys.joint_target_any, self._on_joint),
+            session.declare_subscriber(keys.sim_status, self._on_status),
+        ]
+
+    # --- inputs (zenoh threads) -------------------------------------------
+
+    def _on_targets(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            message = self._targets_codec.decode(*payload_of(sample))
+        except DecodeError as exc:
+            self._report(key, Verdict(False, str(exc)))
+            return
+        self._apply(key, message.names, message.q, message.dq)
+
+    def _on_joint(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            joint = self._keys.joint_from_target_key(key)
+            value = decode_scalar(*payload_of(sample))
+        except (DecodeError, ValueError) as exc:
+            self._report(key, Verdict(False, str(exc)))
+            return
+        self._apply(key, (joint,), (value,), None)
+
+    def _apply(self, key: str, names: tuple[str, ...], q: tuple[float, ...], dq: tuple[float, ...] | None) -> None:
+        with self._lock:
+            verdict = self._held.apply(names, q, dq)
+        self._report(key, verdict)
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        try:
+            status = self._status_codec.decode(*payload_of(sample))
+        except DecodeError as exc:
+            self._status_log.warning("ignoring bad SimStatus: %s", exc)
+            return
+        try:
+            with self._lock:
+                reset = self._held.follow_sim(status.mode, status.resets)
+        except RobotModelError as exc:
+            self._status_log.warning("%s; keeping the current targets", exc)
+            return
+        if reset:
+            logger.info("sim reset or mode change (mode %s, resets %d): holding the default pose",
+                        status.mode, status.resets)
+
+    def _report(self, key: str, verdict: Verdict) -> None:
+        """Count, log (rate-limited) and publish the verdict on an input that was rejected or clamped."""
+        if verdict.accepted and not verdict.clamped:
+            return
+        with self._lock:
+            if verdict.accepted:
+                self._clamped_total += 1
+            else:
+                self._rejected_total += 1
+            rejected_total, clamped_total = self._rejected_total, self._clamped_total
+        if verdict.accepted:
+            self._clamp_log.warning("clamped to the joint limits on %s: %s", key, ", ".join(verdict.clamped))
+        else:
+            self._reject_log.warning("rejected input on %s: %s", key, verdict.error)
+        self._reports.put(BridgeReport(
+            key=key, accepted=verdict.accepted, error=verdict.error, clamped=verdict.clamped,
+            rejected_total=rejected_total, clamped_total=clamped_total,
+        ))
+
+    # --- outputs (the loop's thread) --------------------------------------
+
+    def tick(self, dt_s: float, publish_targets: bool) -> None:
+        """Advance the slew limit by `dt_s` and publish the motor command (and the held targets)."""
+        with self._lock:
+            q = tuple(self._held.step(dt_s).tolist())
+            dq = tuple(self._held.target_dq.tolist())
+            kp, kd = self._gains[self._held.mode]
+        self._motors.put(MotorCommand(q=q, dq=dq, kp=kp, kd=kd))
+        if publish_targets:
+            self._targets.put(JointTargets(names=self._held.joint_names, q=q))
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        for publisher in (self._motors, self._targets, self._reports):
+            publisher.undeclare()
+
+
+def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event) -> int:
+    """Learn the robot, then publish motor commands at `rate_hz` until `stop` is set.
+
+    Returns:
+        The process exit code.
+    """
+    keys = Keys(settings.robot_id)
+    if settings.robot or settings.urdf:
+        try:
+            model = RobotModel.from_files(settings.robot, settings.urdf, settings.control)
+        except (OSError, ValueError) as exc:
+            logger.error("cannot load the robot files: %s", exc)
+            return 2
+        logger.info("robot from local files: %d joints", len(model.joint_names))
+    else:
+        logger.info("asking the sim on %s", keys.robot_info)
+        model = fetch_model(session, keys, settings.info_timeout_s, stop)
+        if model is None:
+            return 0
+        logger.info("robot from the sim: %d joints, mode %s", len(model.joint_names), model.mode)
+
+    bridge = Bridge(session, keys, model, settings)
+    token = session.liveliness().declare_token(keys.alive("bridge"))
+    # The shared pacer keeps an absolute schedule (no drift) and drops debt after a stall.
+    pacer = Pacer(1.0 / settings.rate_hz, rtf=1.0)
+    targets_every = max(1, round(settings.rate_hz / settings.targets_rate_hz)) if settings.targets_rate_hz else 0
+    logger.info("bridge up: %s at %.0f Hz, slew limit %s", keys.motors, settings.rate_hz,
+                f"{settings.slew_rad_s} rad/s" if settings.slew_rad_s else "off")
+    ticks = 0
+    last = time.monotonic() - 1.0 / settings.rate_hz
+    try:
+        while not stop.is_set():
+            now = time.monotonic()
+            bridge.tick(now - last, targets_every > 0 and ticks % targets_every == 0)
+            last = now
+            ticks += 1
+            pacer.stepped()
+            pacer.wait()
+    finally:
+        token.undeclare()
+        bridge.close()
+    logger.info("%d ticks, %d schedule restarts after stalls", ticks, pacer.resyncs)
+    return 0

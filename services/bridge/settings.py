@@ -1,0 +1,36 @@
+"""Settings of `zensim bridge` (defaults < `ZENSIM_*` environment < `--flags`)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+
+from zensim.common.settings import ZenohSettings
+
+MAX_RATE_HZ = 1000.0
+
+
+class BridgeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Settings of `zensim bridge`: joint targets in, motor commands out."""
+
+    robot_id: str = "g1"
+    """Robot id: the `{robot}` chunk of every key (zensim/{robot}/...)."""
+    log_level: str = "INFO"
+    """Python log level (DEBUG, INFO, WARNING, ERROR); zenoh's own logs follow RUST_LOG."""
+    zenoh: ZenohSettings = ZenohSettings()
+    """Zenoh session settings."""
+    rate_hz: Annotated[float, msgspec.Meta(ge=1, le=MAX_RATE_HZ)] = 100.0
+    """Rate of MotorCommand on cmd/motors, Hz (1 to 1000)."""
+    targets_rate_hz: Annotated[float, msgspec.Meta(ge=0, le=MAX_RATE_HZ)] = 30.0
+    """Rate of the held targets on state/targets (the viewer's ghost), Hz; 0 turns it off."""
+    slew_rad_s: Annotated[float, msgspec.Meta(ge=0)] = 2.0
+    """Slew limit: most a commanded joint position moves per second, rad/s; 0 turns it off."""
+    info_timeout_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
+    """How long each query of the sim's info/robot waits before it is retried, s."""
+    robot: str | None = None
+    """Bundled robot (e.g. g1) to read joints, limits and gains from instead of asking the sim."""
+    urdf: str | None = None
+    """A URDF to read joints and limits from instead of asking the sim (gains from --control)."""
+    control: str | None = None
+    """A control.toml to go with --urdf or --robot."""

@@ -1,0 +1,225 @@
+"""The bridge's pure logic: one held target per joint, merged from partial inputs, made safe.
+
+No zenoh here, so every rule can be tested without a network:
+
+- an input naming an unknown joint, or carrying a NaN or an infinity, is rejected whole:
+  nothing of it is applied (a half-applied slider message would leave the robot in a pose
+  nobody asked for);
+- targets beyond the joint limits are clamped, and the clamped joints are reported;
+- the commanded q moves toward the held target by at most `slew_rad_s * dt` per tick, so a
+  slider jump does not throw the robot over (a PD-only robot has no balance to catch it);
+- after a sim reset or a mode change the held targets become the (new) mode's default pose,
+  since the robot was just put there and stale targets would yank it away.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from zensim.schemas import Mode, RobotInfo
+
+MAX_TICK_S = 0.1
+"""Longest tick the slew limit accounts for: after a stall the q must not jump by seconds' worth."""
+
+
+class RobotModelError(ValueError):
+    """A robot description the bridge cannot use (vector lengths, a missing mode)."""
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """What the bridge needs to know about the robot: joints, limits, poses and gains per mode.
+
+    Vectors are float arrays in canonical joint order.
+    """
+
+    joint_names: tuple[str, ...]
+    q_min: np.ndarray
+    q_max: np.ndarray
+    default_q: Mapping[str, np.ndarray]
+    kp: Mapping[str, np.ndarray]
+    kd: Mapping[str, np.ndarray]
+    mode: Mode
+    """The mode the robot is in when the description was taken."""
+
+    def __post_init__(self) -> None:
+        n = len(self.joint_names)
+        if len(set(self.joint_names)) != n:
+            raise RobotModelError("joint_names names a joint more than once")
+        for name, vector in (("q_min", self.q_min), ("q_max", self.q_max)):
+            if vector.shape != (n,):
+                raise RobotModelError(f"{name} has {vector.size} values for {n} joints")
+        for table_name, table in (("default_q", self.default_q), ("kp", self.kp), ("kd", self.kd)):
+            for mode, vector in table.items():
+                if vector.shape != (n,):
+                    raise RobotModelError(f"{table_name}[{mode}] has {vector.size} values for {n} joints")
+                if not np.all(np.isfinite(vector)):
+                    raise RobotModelError(f"{table_name}[{mode}] holds a non-finite value")
+        if not self.has_mode(self.mode):
+            raise RobotModelError(f"no default pose and gains for the current mode {self.mode!r}")
+
+    def has_mode(self, mode: str) -> bool:
+        """Whether the description carries a default pose and gains for `mode`."""
+        return mode in self.default_q and mode in self.kp and mode in self.kd
+
+    @classmethod
+    def from_info(cls, info: RobotInfo) -> RobotModel:
+        """The model the sim describes on info/robot.
+
+        Raises:
+            RobotModelError: inconsistent vector lengths or no data for the current mode.
+        """
+        return cls(
+            joint_names=tuple(info.joint_names),
+            q_min=np.asarray(info.q_min, float),
+            q_max=np.asarray(info.q_max, float),
+            default_q={mode: np.asarray(q, float) for mode, q in info.default_q.items()},
+            kp={mode: np.asarray(g.kp, float) for mode, g in info.gains.items()},
+            kd={mode: np.asarray(g.kd, float) for mode, g in info.gains.items()},
+            mode=info.mode,
+        )
+
+    @classmethod
+    def from_files(cls, robot: str | None, urdf: str | None, control: str | None,
+                   mode: Mode = "floating") -> RobotModel:
+        """The model built from local robot files, for both modes (compiles MuJoCo twice).
+
+        Raises:
+            FileNotFoundError: an unknown robot or a missing file.
+            ValueError: a robot description that does not build.
+        """
+        # Imported here: only this optional path needs MuJoCo.
+        from zensim.robots import robot_files
+        from zensim.robots.builder import build
+
+        files = robot_files(robot, urdf=urdf, control=control)
+        built = {m: build(files, m) for m in ("floating", "fixed")}
+        first = built["floating"]
+        return cls(
+            joint_names=tuple(first.joint_names),
+            q_min=np.asarray(first.q_min, float),
+            q_max=np.asarray(first.q_max, float),
+            default_q={m: np.asarray(r.default_q, float) for m, r in built.items()},
+            kp={m: np.asarray(r.kp, float) for m, r in built.items()},
+            kd={m: np.asarray(r.kd, float) for m, r in built.items()},
+            mode=mode,
+        )
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What became of one input."""
+
+    accepted: bool
+    error: str | None = None
+    clamped: tuple[str, ...] = ()
+
+
+@dataclass
+class HeldTargets:
+    """Held targets for every joint and the slew-limited q commanded toward them.
+
+    Not thread-safe: the service guards it with one lock.
+
+    Args:
+        model: the robot.
+        slew_rad_s: most a commanded q moves per second, rad/s; 0 turns the limit off.
+    """
+
+    model: RobotModel
+    slew_rad_s: float = 2.0
+    mode: Mode = field(init=False)
+    target_q: np.ndarray = field(init=False)
+    target_dq: np.ndarray = field(init=False)
+    q: np.ndarray = field(init=False)
+    """The commanded q: slew-limited, moving toward target_q."""
+    _resets: int | None = field(init=False, default=None)
+
+    def __post_init__(self) -> None:
+        if not (self.slew_rad_s >= 0 and math.isfinite(self.slew_rad_s)):
+            raise ValueError(f"slew_rad_s must be finite and >= 0, got {self.slew_rad_s}")
+        self._index = {name: i for i, name in enumerate(self.model.joint_names)}
+        self.hold_default(self.model.mode)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.model.joint_names
+
+    def hold_default(self, mode: Mode) -> None:
+        """Hold `mode`'s default pose, at once (the sim has just put the robot there)."""
+        self.mode = mode
+        self.target_q = self.model.default_q[mode].copy()
+        self.target_dq = np.zeros_like(self.target_q)
+        self.q = self.target_q.copy()
+
+    def follow_sim(self, mode: Mode, resets: int) -> bool:
+        """Track the sim's mode and reset counter; hold the default pose when either changed.
+
+        The first status seen only sets the baseline (the bridge may start long after the
+        sim's last reset), unless its mode differs from the one assumed.
+
+        Returns:
+            True when the held targets were reset.
+
+        Raises:
+            RobotModelError: the sim switched to a mode the description has no data for.
+        """
+        changed = mode != self.mode or (self._resets is not None and resets != self._resets)
+        if changed and not self.model.has_mode(mode):
+            raise RobotModelError(f"sim is in mode {mode!r}, which the robot description lacks")
+        self._resets = resets
+        if changed:
+            self.hold_default(mode)
+        return changed
+
+    def apply(self, names: Sequence[str], q: Sequence[float], dq: Sequence[float] | None = None) -> Verdict:
+        """Merge a partial target into the held targets, all or nothing.
+
+        Returns:
+            Rejected (nothing applied) for an unknown or repeated joint, mismatched lengths or a
+            non-finite value; accepted otherwise, naming the joints clamped to their limits.
+        """
+        if len(q) != len(names) or (dq is not None and len(dq) != len(names)):
+            return Verdict(False, f"{len(names)} names but {len(q)} q" + ("" if dq is None else f", {len(dq)} dq"))
+        if len(set(names)) != len(names):
+            return Verdict(False, "names a joint more than once")
+        unknown = [name for name in names if name not in self._index]
+        if unknown:
+            return Verdict(False, f"unknown joint(s): {', '.join(map(str, unknown))}")
+        for label, values in (("q", q), ("dq", dq)):
+            if values is None:
+                continue
+            for name, value in zip(names, values):
+                if isinstance(value, bool) or not isinstance(value, (int, float)):
+                    return Verdict(False, f"{label} of {name} is not a number: {value!r}")
+                if not math.isfinite(value):
+                    return Verdict(False, f"{label} of {name} is not finite: {value}")
+        idx = np.fromiter((self._index[name] for name in names), int, len(names))
+        wanted = np.asarray(q, float)
+        lo, hi = self.model.q_min[idx], self.model.q_max[idx]
+        held = np.clip(wanted, lo, hi)
+        clamped = tuple(names[i] for i in np.flatnonzero(held != wanted))
+        self.target_q[idx] = held
+        self.target_dq[idx] = 0.0 if dq is None else np.asarray(dq, float)
+        return Verdict(True, clamped=clamped)
+
+    def step(self, dt_s: float) -> np.ndarray:
+        """Advance the commanded q toward the held targets by one tick of `dt_s` seconds.
+
+        Returns:
+            The commanded q (the array itself; copy it to keep it).
+        """
+        if self.slew_rad_s <= 0:
+            self.q[:] = self.target_q
+            return self.q
+        max_step = self.slew_rad_s * min(max(dt_s, 0.0), MAX_TICK_S)
+        self.q += np.clip(self.target_q - self.q, -max_step, max_step)
+        return self.q
+
+    def gains(self) -> tuple[np.ndarray, np.ndarray]:
+        """kp, kd of the current mode."""
+        return self.model.kp[self.mode], self.model.kd[self.mode]

@@ -1,0 +1,1 @@
+"""Code every zensim service shares: settings, Zenoh sessions, logging, shutdown, pacing."""

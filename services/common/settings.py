@@ -1,0 +1,178 @@
+"""Typed settings for every service: defaults < environment (`ZENSIM_*`) < CLI flags.
+
+Each service declares one frozen msgspec Struct. Its fields are the only
+source of truth: the environment variable names, the `--flags` and their help
+text are all generated from it. Nested structs (the shared `ZenohSettings`)
+are flattened with their field name as prefix: `zenoh.mode` is
+`ZENSIM_ZENOH_MODE` and `--zenoh-mode`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal, TypeVar
+
+import msgspec
+
+from zensim.schemas.generate import attribute_docs
+from zensim.schemas.keys import check_robot_id
+
+logger = logging.getLogger(__name__)
+
+ENV_PREFIX = "ZENSIM_"
+S = TypeVar("S", bound=msgspec.Struct)
+
+
+class SettingsError(ValueError):
+    """A setting that cannot be parsed or is out of range; names the field."""
+
+
+class ZenohSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """How a service joins the Zenoh network (the flags of zenoh's own examples)."""
+
+    mode: Literal["peer", "client", "router"] = "peer"
+    """Zenoh session mode."""
+    connect: tuple[str, ...] = ()
+    """Endpoints to connect to, comma-separated (e.g. tcp/router:7447)."""
+    listen: tuple[str, ...] = ()
+    """Endpoints to listen on, comma-separated (e.g. tcp/0.0.0.0:7447)."""
+    config_file: str | None = None
+    """A zenoh JSON5 config file; the settings above override its fields."""
+    multicast_scouting: bool = True
+    """Find peers by UDP multicast; turn off when endpoints are explicit."""
+
+
+class CommonSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Settings every service has."""
+
+    robot_id: str = "g1"
+    """Robot id: the `{robot}` chunk of every key (zensim/{robot}/...)."""
+    log_level: str = "INFO"
+    """Python log level (DEBUG, INFO, WARNING, ERROR); zenoh's own logs follow RUST_LOG."""
+    zenoh: ZenohSettings = ZenohSettings()
+    """Zenoh session settings."""
+
+
+def _flat_fields(cls: type[msgspec.Struct], prefix: str = "") -> list[tuple[str, tuple[str, ...], Any, str]]:
+    """(flat name, path of field names, type, help) for every leaf field."""
+    docs = attribute_docs(cls)
+    flat = []
+    for field in msgspec.structs.fields(cls):
+        path = (field.name,)
+        if isinstance(field.type, type) and issubclass(field.type, msgspec.Struct):
+            for name, sub_path, typ, doc in _flat_fields(field.type, f"{prefix}{field.name}_"):
+                flat.append((name, path + sub_path, typ, doc))
+        else:
+            flat.append((f"{prefix}{field.name}", path, field.type, docs.get(field.name, "")))
+    return flat
+
+
+def _is_sequence(typ: Any) -> bool:
+    return getattr(typ, "__origin__", None) in (tuple, list)
+
+
+def _raw_value(raw: str, typ: Any) -> Any:
+    if _is_sequence(typ):
+        return [item.strip() for item in raw.split(",") if item.strip()]
+    return raw
+
+
+def _set_path(tree: dict, path: tuple[str, ...], value: Any) -> None:
+    for name in path[:-1]:
+        tree = tree.setdefault(name, {})
+    tree[path[-1]] = value
+
+
+def load_settings(
+    cls: type[S],
+    argv: Sequence[str] | None = None,
+    env: Mapping[str, str] | None = None,
+    prog: str | None = None,
+) -> S:
+    """Build `cls` from its defaults, then `ZENSIM_*` variables, then CLI flags.
+
+    Raises:
+        SettingsError: a value does not parse or is out of range; names the field.
+        SystemExit: from argparse, on --help or an unknown flag.
+    """
+    env = os.environ if env is None else env
+    fields = _flat_fields(cls)
+    parser = argparse.ArgumentParser(prog=prog, description=(cls.__doc__ or "").strip())
+    for name, _, typ, doc in fields:
+        env_name = ENV_PREFIX + name.upper()
+        parser.add_argument(
+            "--" + name.replace("_", "-"),
+            dest=name,
+            metavar="LIST" if _is_sequence(typ) else "VALUE",
+            help=f"{doc} [env {env_name}]",
+        )
+    args = parser.parse_args(list(argv) if argv is not None else None)
+
+    # Start from the defaults of `cls` itself, so a nested default (the
+    # router's listen endpoint) survives when only a sibling field is set.
+    tree: dict = msgspec.to_builtins(cls())
+    for name, path, typ, _ in fields:
+        raw = getattr(args, name)
+        if raw is None:
+            raw = env.get(ENV_PREFIX + name.upper()) or None
+        if raw is not None:
+            _set_path(tree, path, _raw_value(raw, typ))
+    try:
+        return msgspec.convert(tree, cls, strict=False)
+    except msgspec.ValidationError as exc:
+        raise SettingsError(f"bad setting: {_flag_names(str(exc))}") from None
+
+
+def _flag_names(message: str) -> str:
+    """Turn msgspec's `$.zenoh.mode` paths into the flag a user typed."""
+    if "$." not in message:
+        return message
+    head, path = message.rsplit("$.", 1)
+    name = path.rstrip("`").replace(".", "_")
+    head = head.rstrip("`")
+    return f"{head}--{name.replace('_', '-')} / {ENV_PREFIX}{name.upper()}"
+
+
+def describe(settings: msgspec.Struct) -> str:
+    """One log line with every resolved setting."""
+    return " ".join(f"{k}={v!r}" for k, v in _flatten_values(msgspec.structs.asdict(settings)))
+
+
+def _flatten_values(tree: dict, prefix: str = "") -> list[tuple[str, Any]]:
+    out = []
+    for key, value in tree.items():
+        if isinstance(value, msgspec.Struct):
+            out.extend(_flatten_values(msgspec.structs.asdict(value), f"{prefix}{key}_"))
+        else:
+            out.append((prefix + key, value))
+    return out
+
+
+def settings_table(cls: type[msgspec.Struct]) -> str:
+    """A Markdown table of every setting: variable, flag, default, meaning (for the service READMEs)."""
+    defaults = msgspec.to_builtins(cls())
+    rows = ["| environment | flag | default | meaning |", "|---|---|---|---|"]
+    for name, path, _, doc in _flat_fields(cls):
+        value: Any = defaults
+        for part in path:
+            value = value.get(part) if isinstance(value, dict) else None
+        shown = ",".join(map(str, value)) if isinstance(value, (list, tuple)) else ("" if value is None else str(value).lower() if isinstance(value, bool) else value)
+        rows.append(f"| `{ENV_PREFIX}{name.upper()}` | `--{name.replace('_', '-')}` | `{shown}` | {doc} |")
+    return "\n".join(rows) + "\n"
+
+
+def settings_or_exit(cls: type[S], argv: Sequence[str] | None, prog: str) -> S:
+    """`load_settings` for a command's main: a bad setting prints one line and exits with code 2."""
+    try:
+        settings = load_settings(cls, argv, prog=prog)
+        robot_id = getattr(settings, "robot_id", None)
+        if robot_id is not None:
+            check_robot_id(robot_id)
+    except (SettingsError, ValueError) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return settings

@@ -1,0 +1,343 @@
+"""`zensim viz` wiring: zenoh in, web page out. The drawing and checks live in scene.py and panel.py.
+
+Reads:
+    state/joints (JointState), state/odom (Odometry): the robot's pose, latest wins.
+    state/targets (JointTargets): the ghost (the commanded pose the bridge holds).
+    state/sim (SimStatus): the status panel.
+    alive/* (liveliness): which services are up; `alive/sim` appearing triggers a description fetch.
+    info/robot, info/urdf, info/mesh/{path} (gets): the description, fetched again after each sim start.
+Writes:
+    cmd/joints (JointTargets): slider moves.
+    ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode (gets): the panel's buttons.
+    alive/viz (liveliness token).
+
+Threads: the tornado loop (main thread) owns the hub and the web server;
+zenoh callbacks only store the newest sample; one worker thread fetches
+descriptions; ctl gets run in a small executor so a slow sim never blocks the page.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import tornado.httpserver
+import tornado.ioloop
+import tornado.netutil
+import zenoh
+
+from zensim.common.logs import RateLimitedLog
+from zensim.common.wire import TypedPublisher, payload_of
+from zensim.schemas import (
+    Codec,
+    CtlReply,
+    DecodeError,
+    JointState,
+    JointTargets,
+    Keys,
+    ModeRequest,
+    Odometry,
+    PauseRequest,
+    ResetRequest,
+    ResumeRequest,
+    RobotInfo,
+    SimStatus,
+    StepRequest,
+    encoding_of,
+)
+
+from . import panel, scene
+from .settings import VizSettings
+from .web import Client, Hub, make_app
+
+logger = logging.getLogger(__name__)
+
+STATUS_PERIOD_S = 0.2
+DESCRIPTION_RETRY_S = 2.0
+
+
+class Latest:
+    """The newest decoded sample of one key, with a counter that says when it changed.
+
+    Zenoh callbacks run on their own threads; a single attribute store is atomic
+    in CPython, so the reader sees either the old or the new (value, count).
+    """
+
+    def __init__(self) -> None:
+        self.item: tuple[Any, int] = (None, 0)
+
+    def set(self, value: Any) -> None:
+        self.item = (value, self.item[1] + 1)
+
+
+class VizService:
+    """The viz process: holds the zenoh session's declarations and the web server."""
+
+    def __init__(self, session: zenoh.Session, settings: VizSettings, stop: threading.Event) -> None:
+        self.session = session
+        self.settings = settings
+        self.stop = stop
+        self.keys = Keys(settings.robot_id)
+        self.loop = tornado.ioloop.IOLoop.current()
+        self.hub = Hub(self._on_client_message)
+        self.executor = ThreadPoolExecutor(max_workers=2, thread_name_prefix="viz-ctl")
+        self.bad_input = RateLimitedLog(logger)
+
+        self.joints = Latest()
+        self.odom = Latest()
+        self.targets = Latest()
+        self.status = Latest()
+        self.alive: set[str] = set()
+        self.alive_lock = threading.Lock()
+
+        self.drawing: scene.Drawing | None = None
+        self.limits: panel.JointLimits | None = None
+        self.description_state = "waiting for the sim"
+        self._fetch_wanted = threading.Event()
+        self._last_drawn = (-1, -1, -1)
+
+        self._codecs = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus, RobotInfo, CtlReply)}
+        self.cmd_publisher = TypedPublisher(session, self.keys.joint_targets, JointTargets)
+        self._declared = [
+            session.declare_subscriber(self.keys.joints, self._store(self.joints, JointState)),
+            session.declare_subscriber(self.keys.odom, self._store(self.odom, Odometry)),
+            session.declare_subscriber(self.keys.sim_status, self._store(self.status, SimStatus)),
+            session.liveliness().declare_subscriber(self.keys.alive_any, self._on_alive, history=True),
+        ]
+        if settings.ghost:
+            self._declared.append(
+                session.declare_subscriber(self.keys.bridge_targets, self._store(self.targets, JointTargets)))
+        self.token = session.liveliness().declare_token(self.keys.alive("viz"))
+
+    # --- zenoh callbacks: decode, store, return ----------------------------------------
+    def _store(self, slot: Latest, message_type: type) -> Any:
+        codec = self._codecs[message_type]
+
+        def callback(sample: zenoh.Sample) -> None:
+            try:
+                slot.set(codec.decode(*payload_of(sample)))
+            except DecodeError as exc:
+                self.bad_input.warning("dropped a sample on %s: %s", sample.key_expr, exc)
+
+        return callback
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        service = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self.alive_lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(service)
+            else:
+                self.alive.discard(service)
+        logger.info("%s %s", service, "is alive" if sample.kind == zenoh.SampleKind.PUT else "left")
+        if service == "sim" and sample.kind == zenoh.SampleKind.PUT:
+            # A (re)started sim may serve another robot or mode: fetch the description again.
+            self._fetch_wanted.set()
+
+    # --- description ------------------------------------------------------------------
+    def fetch_loop(self) -> None:
+        """Worker thread: fetch the description whenever asked (startup, each sim start)."""
+        if self.settings.urdf:
+            self._fetch_wanted.set()
+        while not self.stop.is_set():
+            if not self._fetch_wanted.wait(0.2):
+                continue
+            self._fetch_wanted.clear()
+            try:
+                drawing = self._fetch_description()
+            except (OSError, ValueError, TimeoutError, zenoh.ZError) as exc:
+                self.description_state = f"description failed: {exc}"
+                logger.warning("%s", self.description_state)
+                with self.alive_lock:
+                    sim_alive = "sim" in self.alive
+                if sim_alive and not self.stop.wait(DESCRIPTION_RETRY_S):
+                    self._fetch_wanted.set()
+                continue
+            self.loop.add_callback(self._install, drawing)
+
+    def _get_bytes(self, key: str, payload: bytes | None = None) -> bytes:
+        """One zenoh get; the first good reply's payload.
+
+        Raises:
+            TimeoutError: no reply within query_timeout_s.
+            ValueError: the queryable answered with an error.
+        """
+        replies = self.session.get(key, payload=payload, encoding=zenoh.Encoding(encoding_of("msgpack")) if payload is not None else None,
+                                   timeout=self.settings.query_timeout_s)
+        for reply in replies:
+            if reply.ok is not None:
+                return reply.ok.payload.to_bytes()
+            raise ValueError(f"{key}: {reply.err.payload.to_string()}")
+        raise TimeoutError(f"no reply on {key} within {self.settings.query_timeout_s} s")
+
+    def _fetch_description(self) -> scene.Drawing:
+        self.description_state = "fetching the description"
+        started = time.monotonic()
+        info: RobotInfo | None = None
+        with self.alive_lock:
+            sim_alive = "sim" in self.alive
+        if sim_alive or not self.settings.urdf:
+            info = self._codecs[RobotInfo].decode(self._get_bytes(self.keys.robot_info))
+        meshes: dict[str, bytes] = {}
+        if self.settings.urdf:
+            urdf_path = Path(self.settings.urdf).expanduser().resolve()
+            urdf_text = urdf_path.read_text()
+            source = str(urdf_path)
+            for filename in scene.parse_urdf(urdf_text).mesh_filenames():
+                path = Path(scene.local_mesh_path(str(urdf_path.parent), filename))
+                if path.is_file():
+                    meshes[filename] = path.read_bytes()
+                else:
+                    logger.warning("mesh %s not found at %s", filename, path)
+        else:
+            assert info is not None
+            urdf_text = self._get_bytes(self.keys.urdf).decode("utf-8")
+            source = f"zenoh {self.keys.urdf}"
+            for filename in scene.parse_urdf(urdf_text).mesh_filenames():
+                served = scene.match_mesh(filename, info.mesh_paths)
+                if served is None:
+                    logger.warning("mesh %s is not among RobotInfo.mesh_paths: not drawn", filename)
+                    continue
+                meshes[filename] = self._get_bytes(self.keys.mesh(served))
+        drawing = scene.build_drawing(
+            urdf_text, meshes,
+            joint_names=info.joint_names if info else None,
+            q_min=info.q_min if info else None, q_max=info.q_max if info else None,
+            ghost=self.settings.ghost, source=source,
+        )
+        logger.info("description of %s from %s: %d links, %d joints, %d meshes (%.0f kB) in %.2f s",
+                    drawing.robot.name, source, len(drawing.kin.links), len(drawing.joint_names), len(meshes),
+                    sum(map(len, meshes.values())) / 1e3, time.monotonic() - started)
+        return drawing
+
+    def _install(self, drawing: scene.Drawing) -> None:
+        self.drawing = drawing
+        self.limits = panel.JointLimits(drawing.joint_names, drawing.lower, drawing.upper)
+        self.description_state = "ok"
+        self._last_drawn = (-1, -1, -1)
+        self.hub.set_scene(drawing.commands, drawing.meta)
+
+    # --- periodic work on the loop ------------------------------------------------------
+    def tick(self) -> None:
+        """Draw the newest pose for browsers that are ready (at most rate_hz)."""
+        if self.stop.is_set():
+            self.loop.stop()
+            return
+        drawing = self.drawing
+        if drawing is None or not self.hub.any_ready():
+            return
+        (js, n_j), (odom, n_o), (targets, n_t) = self.joints.item, self.odom.item, self.targets.item
+        if (n_j, n_o, n_t) == self._last_drawn and self.hub.frame is not None:
+            return  # nothing new: ready browsers already have the newest frame
+        self._last_drawn = (n_j, n_o, n_t)
+        pos = odom.pos if odom is not None else None
+        quat = odom.quat_wxyz if odom is not None else None
+        q = js.q if js is not None and len(js.q) == len(drawing.joint_names) else None
+        actual = drawing.kin.transforms(q, scene.base_transform(pos, quat))
+        parts = [actual]
+        if self.settings.ghost:
+            parts.append(drawing.kin.transforms(
+                self._ghost_q(drawing, targets, q), scene.base_transform(pos, quat, self.settings.ghost_offset_m)))
+        self.hub.publish_frame(scene.frame_payload(*parts))
+
+    @staticmethod
+    def _ghost_q(drawing: scene.Drawing, targets: JointTargets | None, q: Any) -> list[float] | None:
+        """Targets in canonical order; joints the bridge did not name follow the actual pose."""
+        if targets is None:
+            return q
+        ghost = list(q) if q is not None else [0.0] * len(drawing.joint_names)
+        index = {n: i for i, n in enumerate(drawing.joint_names)}
+        for name, value in zip(targets.names, targets.q):
+            i = index.get(name)
+            if i is not None:
+                ghost[i] = value
+        return ghost
+
+    def publish_status(self) -> None:
+        status, _ = self.status.item
+        targets, _ = self.targets.item
+        joints, _ = self.joints.item
+        with self.alive_lock:
+            alive = sorted(self.alive)
+        message: dict[str, Any] = {
+            "type": "status",
+            "alive": alive,
+            "description": self.description_state,
+            "sim": msgspec.to_builtins(status) if status is not None else None,
+            "targets": {"names": list(targets.names), "q": list(targets.q)} if targets is not None else None,
+            "state_seq": joints.seq if joints is not None else None,
+            "frames_sent": self.hub.frames_sent,
+        }
+        self.hub.publish_json(message)
+
+    # --- browser input -----------------------------------------------------------------
+    def _on_client_message(self, client: Client, data: Any) -> None:
+        try:
+            command = panel.parse_client_message(data, self.limits)
+        except panel.PanelError as exc:
+            self.hub.reply(client, {"type": "error", "error": str(exc)})
+            return
+        if isinstance(command, JointTargets):
+            self.cmd_publisher.put(command)
+            return
+        future = self.loop.run_in_executor(self.executor, self._ctl, command)
+        future.add_done_callback(lambda f: self.hub.reply(client, f.result()))
+
+    def _ctl(self, command: panel.Ctl) -> dict:
+        """Executor thread: one ctl get; the page's reply as a dict."""
+        request = {
+            "reset": ResetRequest(),
+            "pause": PauseRequest(),
+            "resume": ResumeRequest(),
+            "step": StepRequest(n=1),
+        }.get(command.verb) or ModeRequest(mode=command.mode)  # type: ignore[arg-type]
+        out: dict[str, Any] = {"type": "ctl_reply", "verb": command.verb}
+        try:
+            raw = self._get_bytes(self.keys.ctl(command.verb), Codec(type(request)).encode(request))
+            reply = self._codecs[CtlReply].decode(raw)
+        except (TimeoutError, ValueError, zenoh.ZError) as exc:
+            out.update(ok=False, error=str(exc))
+            return out
+        out.update(msgspec.to_builtins(reply))
+        out["type"] = "ctl_reply"
+        logger.info("ctl/%s -> ok=%s %s", command.verb, reply.ok, reply.error or "")
+        return out
+
+    def close(self) -> None:
+        self.token.undeclare()
+        for declared in self._declared:
+            declared.undeclare()
+        self.cmd_publisher.undeclare()
+        self.executor.shutdown(wait=False, cancel_futures=True)
+
+
+def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) -> int:
+    """Serve the page until `stop` is set; returns the exit code."""
+    service = VizService(session, settings, stop)
+    server = tornado.httpserver.HTTPServer(make_app(service.hub))
+    try:
+        sockets = tornado.netutil.bind_sockets(settings.port, address=settings.host)
+    except OSError as exc:
+        logger.error("cannot serve on %s:%d: %s", settings.host, settings.port, exc)
+        service.close()
+        return 1
+    server.add_sockets(sockets)
+    port = sockets[0].getsockname()[1]
+    logger.info("viz up: http://%s:%d/", settings.host, port)
+    fetcher = threading.Thread(target=service.fetch_loop, name="viz-description", daemon=True)
+    fetcher.start()
+    tornado.ioloop.PeriodicCallback(service.tick, 1000.0 / settings.rate_hz).start()
+    tornado.ioloop.PeriodicCallback(service.publish_status, STATUS_PERIOD_S * 1000).start()
+    tornado.ioloop.PeriodicCallback(lambda: stop.is_set() and service.loop.stop(), 50).start()
+    try:
+        service.loop.start()
+    finally:
+        server.stop()
+        service.close()
+        fetcher.join(timeout=0.3)  # a daemon: a get in flight must not hold the exit past 2 s
+    logger.info("viz stopped")
+    return 0

@@ -1,0 +1,28 @@
+"""Settings of `zensim viz` (defaults < `ZENSIM_*` environment < `--flags`)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+
+from zensim.common.settings import CommonSettings
+
+
+class VizSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Settings of `zensim viz`: the web viewer with joint sliders."""
+
+    host: str = "127.0.0.1"
+    """Address the web page is served on; 0.0.0.0 serves every interface (as in a container)."""
+    port: Annotated[int, msgspec.Meta(ge=0, le=65535)] = 7000
+    """TCP port of the web page (0: any free port, logged at start)."""
+    urdf: str | None = None
+    """A local URDF to draw (meshes resolved beside it) instead of fetching info/urdf from the sim."""
+    rate_hz: Annotated[float, msgspec.Meta(gt=0, le=240)] = 60.0
+    """Most pose updates per second sent to a browser; each browser gets only the newest pose when ready."""
+    ghost: bool = True
+    """Draw the translucent commanded pose (state/targets)."""
+    ghost_offset_m: tuple[float, ...] = (0.0, 0.9, 0.0)
+    """Where the ghost stands relative to the robot, x,y,z in m, world frame (default: beside it; 0,0,0: over it)."""
+    query_timeout_s: Annotated[float, msgspec.Meta(gt=0)] = 5.0
+    """Timeout of each zenoh get (description, ctl requests), s."""

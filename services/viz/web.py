@@ -1,0 +1,225 @@
+"""The viewer's web server: one page, meshcat's own viewer JS, and one websocket per browser.
+
+No meshcat-server is spawned (NOTES.md: its unread pipes fill, it binds every
+interface, it replays every command to new browsers and has no backpressure).
+Instead this tornado app serves meshcat's viewer bundle from the installed
+wheel and pushes meshcat commands over its own websocket.
+
+Flow control is latest-wins per browser: the hub keeps only the newest pose
+frame; a browser gets a frame only after it acknowledged the previous one
+(the page acks after the frame was drawn), so a slow browser sees fewer
+frames, never older ones, and nothing queues on the server. Status messages
+are skipped for a browser whose previous one is still being written.
+
+Binary messages carry an 8-byte header of two little-endian uint32:
+`kind` (1: a msgpack meshcat command, 2: a pose frame of float32 4x4s) and the
+scene generation, so a frame never lands on a scene it was not made for.
+Text messages are JSON in both directions; what browsers send is validated by
+`panel.parse_client_message` before anything reaches zenoh.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import struct
+from collections.abc import Callable
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import meshcat
+import tornado.web
+import tornado.websocket
+
+logger = logging.getLogger(__name__)
+
+KIND_COMMAND = 1
+KIND_FRAME = 2
+MAX_CLIENT_MESSAGE_BYTES = 64 * 1024
+STATIC_DIR = Path(str(resources.files("zensim.viz") / "static"))
+MESHCAT_JS = Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js"
+
+
+def header(kind: int, generation: int) -> bytes:
+    return struct.pack("<II", kind, generation)
+
+
+class Client:
+    """One connected browser and what it has been sent."""
+
+    def __init__(self, handler: VizSocket) -> None:
+        self.handler = handler
+        self.ready = True
+        """False from sending a frame until the browser acks it."""
+        self.sent_seq = -1
+        self.frames_sent = 0
+        self.status_busy = False
+
+    def send(self, data: bytes | str, binary: bool) -> Any:
+        try:
+            return self.handler.write_message(data, binary=binary)
+        except tornado.websocket.WebSocketClosedError:
+            return None
+
+
+class Hub:
+    """The current scene, the newest frame and status, and the browsers that want them.
+
+    Runs on the tornado loop only; other threads hand data over with
+    `IOLoop.add_callback`.
+
+    Args:
+        on_message: called with (client, decoded JSON) for each text message except acks.
+    """
+
+    def __init__(self, on_message: Callable[[Client, Any], None]) -> None:
+        self.on_message = on_message
+        self.clients: set[Client] = set()
+        self.generation = 0
+        self.scene: list[bytes] = []
+        self.robot_meta: dict | None = None
+        self.frame: bytes | None = None
+        self.frame_seq = 0
+        self.frames_sent = 0
+
+    # --- scene ---------------------------------------------------------------
+    def set_scene(self, commands: list[bytes], robot_meta: dict) -> None:
+        """Install a new robot drawing and send it to every browser."""
+        self.generation += 1
+        self.scene = [header(KIND_COMMAND, self.generation) + c for c in commands]
+        self.robot_meta = dict(robot_meta, type="robot", generation=self.generation)
+        self.frame = None
+        for client in list(self.clients):
+            self._send_scene(client)
+
+    def _send_scene(self, client: Client) -> None:
+        for message in self.scene:
+            client.send(message, binary=True)
+        if self.robot_meta is not None:
+            client.send(json.dumps(self.robot_meta), binary=False)
+        client.ready = True
+        client.sent_seq = -1
+
+    # --- frames --------------------------------------------------------------
+    def any_ready(self) -> bool:
+        return any(c.ready for c in self.clients)
+
+    def publish_frame(self, payload: bytes) -> None:
+        """Make `payload` the newest frame and send it to every browser that is ready for one."""
+        self.frame_seq += 1
+        self.frame = header(KIND_FRAME, self.generation) + payload
+        for client in list(self.clients):
+            if client.ready:
+                self._send_frame(client)
+
+    def _send_frame(self, client: Client) -> None:
+        if self.frame is None or client.sent_seq >= self.frame_seq:
+            return
+        client.ready = False
+        client.sent_seq = self.frame_seq
+        client.frames_sent += 1
+        self.frames_sent += 1
+        client.send(self.frame, binary=True)
+
+    def ack(self, client: Client) -> None:
+        # The next tick sends the newest frame: acking never triggers a burst above rate_hz.
+        client.ready = True
+
+    # --- status --------------------------------------------------------------
+    def publish_json(self, message: dict) -> None:
+        """Send a small JSON message to every browser not still busy with the previous one."""
+        text = json.dumps(message)
+        for client in list(self.clients):
+            if client.status_busy:
+                continue
+            future = client.send(text, binary=False)
+            if future is not None:
+                client.status_busy = True
+                future.add_done_callback(lambda _f, c=client: setattr(c, "status_busy", False))
+
+    def reply(self, client: Client, message: dict) -> None:
+        if client in self.clients:
+            client.send(json.dumps(message), binary=False)
+
+    # --- connections ---------------------------------------------------------
+    def opened(self, client: Client) -> None:
+        self.clients.add(client)
+        logger.info("browser connected (%d now)", len(self.clients))
+        self._send_scene(client)
+
+    def closed(self, client: Client) -> None:
+        self.clients.discard(client)
+        logger.info("browser left (%d now)", len(self.clients))
+
+
+class VizSocket(tornado.websocket.WebSocketHandler):
+    """The page's websocket: meshcat commands and frames out, JSON panel input in."""
+
+    def initialize(self, hub: Hub) -> None:
+        self.hub = hub
+        self.client = Client(self)
+
+    def check_origin(self, origin: str) -> bool:
+        # Same-origin only: another site open in the user's browser must not drive the robot.
+        return super().check_origin(origin)
+
+    def open(self, *args: str, **kwargs: str) -> None:
+        self.set_nodelay(True)
+        self.hub.opened(self.client)
+
+    def on_message(self, message: str | bytes) -> None:
+        if isinstance(message, bytes):
+            return
+        try:
+            data = json.loads(message)
+        except ValueError:
+            logger.debug("browser sent non-JSON text; ignored")
+            return
+        if isinstance(data, dict) and data.get("type") == "ack":
+            self.hub.ack(self.client)
+            return
+        self.hub.on_message(self.client, data)
+
+    def on_close(self) -> None:
+        self.hub.closed(self.client)
+
+
+class NoCacheStatic(tornado.web.StaticFileHandler):
+    def set_extra_headers(self, path: str) -> None:
+        # A restarted viz may serve a newer page: never let the browser keep an old one.
+        self.set_header("Cache-Control", "no-cache")
+
+
+class MeshcatJs(tornado.web.RequestHandler):
+    """meshcat's viewer bundle straight from the installed wheel (works offline)."""
+
+    def get(self) -> None:
+        self.set_header("Content-Type", "application/javascript")
+        self.set_header("Cache-Control", "max-age=3600")
+        self.write(MESHCAT_JS.read_bytes())
+
+
+class IndexPage(tornado.web.RequestHandler):
+    def get(self) -> None:
+        self.set_header("Content-Type", "text/html; charset=utf-8")
+        self.set_header("Cache-Control", "no-cache")
+        self.write((STATIC_DIR / "index.html").read_bytes())
+
+
+def make_app(hub: Hub) -> tornado.web.Application:
+    """The tornado application: `/`, `/static/*`, `/meshcat/main.min.js`, `/ws`."""
+    return tornado.web.Application(
+        [
+            (r"/", IndexPage),
+            (r"/meshcat/main\.min\.js", MeshcatJs),
+            (r"/static/(.*)", NoCacheStatic, {"path": str(STATIC_DIR)}),
+            (r"/ws", VizSocket, {"hub": hub}),
+        ],
+        websocket_max_message_size=MAX_CLIENT_MESSAGE_BYTES,
+        websocket_ping_interval=5,
+        websocket_ping_timeout=15,
+    )
+
+
+__all__ = ["Client", "Hub", "make_app"]

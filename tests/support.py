@@ -1,0 +1,140 @@
+"""Helpers for tests that run zensim the way users do: real processes, real Zenoh on loopback."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+T = TypeVar("T")
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on right now."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def wait_for(condition: Callable[[], T], timeout_s: float, what: str, interval_s: float = 0.02) -> T:
+    """Poll `condition` until it returns something truthy; fail the test after `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(interval_s)
+
+
+class Service:
+    """A zensim service started as users start it: `python -m zensim <command> ...`.
+
+    Output goes to a log file that is printed when the test fails.
+    """
+
+    def __init__(self, command: str, args: list[str], env: dict[str, str], log_dir: Path) -> None:
+        self.command = command
+        self.log_path = log_dir / f"{command}-{time.monotonic_ns()}.log"
+        self._log = self.log_path.open("wb")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "zensim", command, *args],
+            env=env,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+
+    def log(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text(errors="replace")
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def signal(self, signum: int = signal.SIGTERM) -> None:
+        if self.alive():
+            self.proc.send_signal(signum)
+
+    def kill(self) -> None:
+        if self.alive():
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(5)
+
+    def stop(self, timeout_s: float = 5.0) -> int:
+        """SIGTERM, wait, then SIGKILL; returns the exit code."""
+        self.signal(signal.SIGTERM)
+        try:
+            return self.proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self.kill()
+            return self.proc.returncode
+        finally:
+            self._log.close()
+
+
+class Latest:
+    """Subscribes to one key and keeps the newest decoded message (and how many came)."""
+
+    def __init__(self, session, key: str, message_type: type) -> None:
+        import threading
+
+        from zensim.schemas import Codec
+
+        self._codec = Codec(message_type)
+        self._lock = threading.Lock()
+        self.value = None
+        self.count = 0
+        self.history: list = []
+        self.keep_history = False
+        self._sub = session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        message = self._codec.decode(sample.payload.to_bytes(), str(sample.encoding))
+        with self._lock:
+            self.value = message
+            self.count += 1
+            if self.keep_history:
+                self.history.append(message)
+
+    def wait(self, predicate: Callable = lambda m: True, timeout_s: float = 10.0, what: str = "a message"):
+        """Wait until the newest message satisfies `predicate`; return it."""
+        return wait_for(lambda: self.value if self.value is not None and predicate(self.value) else None, timeout_s, what)
+
+
+def ctl(session, key: str, payload: dict | None = None, timeout_s: float = 10.0) -> dict:
+    """Send a control request as JSON with a plain zenoh get; return the decoded JSON reply."""
+    import json
+
+    replies = list(session.get(key, payload=json.dumps(payload or {}), timeout=timeout_s))
+    assert replies, f"no reply from {key}"
+    assert replies[0].ok is not None, f"error reply from {key}: {replies[0].err.payload.to_string()}"
+    return json.loads(replies[0].ok.payload.to_bytes())
+
+
+def plain_client(endpoint: str, wait_for_router: bool = False):
+    """A plain zenoh client session (no zensim code) connected to `endpoint`, multicast off.
+
+    With `wait_for_router` it waits for a router that is still starting instead of failing.
+    """
+    import json
+
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if wait_for_router:
+        conf.insert_json5("connect/timeout_ms", "-1")
+    return zenoh.open(conf)

@@ -1,0 +1,183 @@
+"""Unit tests of the bridge's pure logic (services/bridge/targets.py) and its settings; no network."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from zensim.bridge.settings import BridgeSettings
+from zensim.bridge.targets import HeldTargets, RobotModel, RobotModelError
+from zensim.common.settings import SettingsError, load_settings
+from zensim.schemas import Gains, RobotInfo
+
+NAMES = ("hip", "knee", "elbow")
+
+
+def robot_info(mode: str = "floating") -> RobotInfo:
+    """A three-joint robot with distinct poses and gains per mode."""
+    return RobotInfo(
+        robot="t", model="toy", schema_version=1, joint_names=NAMES,
+        q_min=(-1.0, 0.0, -2.0), q_max=(1.0, 2.0, 2.0),
+        effort_limit=(10.0,) * 3, velocity_limit=(5.0,) * 3,
+        default_q={"floating": (-0.4, 0.9, 0.0), "fixed": (0.0, 0.0, 0.0)},
+        gains={"floating": Gains(kp=(100.0, 100.0, 30.0), kd=(5.0, 5.0, 1.0)),
+               "fixed": Gains(kp=(10.0, 10.0, 3.0), kd=(1.0, 1.0, 0.1))},
+        base_height_m={"floating": 0.8, "fixed": 1.2}, mode=mode,  # type: ignore[arg-type]
+        timestep_s=0.002, state_rate_hz=100.0, status_rate_hz=10.0, watchdog_timeout_s=0.5,
+    )
+
+
+def held(slew: float = 0.0, mode: str = "floating") -> HeldTargets:
+    return HeldTargets(RobotModel.from_info(robot_info(mode)), slew)
+
+
+class TestRobotModel:
+    def test_from_info(self) -> None:
+        model = RobotModel.from_info(robot_info())
+        assert model.joint_names == NAMES
+        assert model.kp["fixed"].tolist() == [10.0, 10.0, 3.0]
+        assert model.mode == "floating"
+
+    @pytest.mark.parametrize("change", [
+        {"q_min": (0.0, 0.0)},
+        {"default_q": {"floating": (0.0,)}},
+        {"gains": {"fixed": Gains(kp=(1.0,) * 3, kd=(1.0,) * 3)}},  # no gains for the current mode
+        {"joint_names": ("a", "a", "b")},
+    ])
+    def test_inconsistent_info_is_refused(self, change: dict) -> None:
+        info = robot_info()
+        fields = {f: getattr(info, f) for f in info.__struct_fields__}
+        with pytest.raises(RobotModelError):
+            RobotModel.from_info(RobotInfo(**{**fields, **change}))
+
+
+class TestApply:
+    def test_starts_at_the_default_pose_of_the_current_mode(self) -> None:
+        assert held().q.tolist() == [-0.4, 0.9, 0.0]
+        assert held(mode="fixed").q.tolist() == [0.0, 0.0, 0.0]
+
+    def test_partial_targets_merge_and_hold_the_rest(self) -> None:
+        h = held()
+        assert h.apply(("knee",), (1.2,)).accepted
+        assert h.apply(("elbow", "hip"), (0.5, 0.1)).accepted
+        assert h.target_q.tolist() == [0.1, 1.2, 0.5]
+
+    @pytest.mark.parametrize("names, q, why", [
+        (("knee", "wrist"), (1.0, 0.0), "unknown joint"),
+        (("knee", "elbow"), (1.0, math.nan), "not finite"),
+        (("knee", "elbow"), (1.0, math.inf), "not finite"),
+        (("knee", "elbow"), (1.0, "x"), "not a number"),
+        (("knee", "elbow"), (1.0, True), "not a number"),
+        (("knee", "knee"), (1.0, 1.0), "more than once"),
+        (("knee", "elbow"), (1.0,), "names"),
+    ])
+    def test_a_bad_input_is_rejected_whole(self, names: tuple, q: tuple, why: str) -> None:
+        h = held()
+        before = h.target_q.copy()
+        verdict = h.apply(names, q)
+        assert not verdict.accepted
+        assert why in (verdict.error or "")
+        assert h.target_q.tolist() == before.tolist()
+
+    def test_a_non_finite_dq_is_rejected(self) -> None:
+        h = held()
+        assert not h.apply(("knee",), (1.0,), (math.nan,)).accepted
+        assert h.target_q[1] == 0.9
+
+    def test_targets_beyond_the_limits_are_clamped_and_named(self) -> None:
+        h = held()
+        verdict = h.apply(("hip", "knee", "elbow"), (-3.0, 1.0, 9.0))
+        assert verdict.accepted and verdict.clamped == ("hip", "elbow")
+        assert h.target_q.tolist() == [-1.0, 1.0, 2.0]
+
+    def test_dq_is_held_per_joint_and_cleared_by_a_position_only_input(self) -> None:
+        h = held()
+        h.apply(("knee", "elbow"), (1.0, 0.0), (0.5, -0.5))
+        assert h.target_dq.tolist() == [0.0, 0.5, -0.5]
+        h.apply(("knee",), (1.1,))
+        assert h.target_dq.tolist() == [0.0, 0.0, -0.5]
+
+
+class TestSlew:
+    def test_off_jumps_to_the_target(self) -> None:
+        h = held(slew=0.0)
+        h.apply(("elbow",), (1.5,))
+        assert h.step(0.01)[2] == 1.5
+
+    def test_moves_at_most_slew_times_dt_per_tick(self) -> None:
+        h = held(slew=2.0)
+        h.apply(("elbow", "hip"), (1.5, -0.5))
+        trajectory = [h.step(0.01).copy() for _ in range(100)]
+        steps = np.abs(np.diff(np.array(trajectory)[:, 2]))
+        assert steps.max() <= 0.02 + 1e-12
+        assert trajectory[0][2] == pytest.approx(0.02)
+        assert trajectory[-1][2] == 1.5  # arrives and stays
+        assert trajectory[4][0] == -0.5  # a small move arrives in its own time
+        assert trajectory[0][1] == 0.9  # untouched joints stay
+
+    def test_a_stall_does_not_turn_into_a_jump(self) -> None:
+        h = held(slew=2.0)
+        h.apply(("elbow",), (1.5,))
+        assert h.step(5.0)[2] == pytest.approx(0.2)  # MAX_TICK_S worth, not 10 rad
+
+    def test_negative_slew_is_refused(self) -> None:
+        with pytest.raises(ValueError):
+            held(slew=-1.0)
+
+
+class TestFollowSim:
+    def test_first_status_sets_the_baseline(self) -> None:
+        h = held(slew=2.0)
+        h.apply(("elbow",), (1.5,))
+        assert not h.follow_sim("floating", 7)
+        assert h.target_q[2] == 1.5
+
+    def test_a_reset_holds_the_default_pose_not_stale_targets(self) -> None:
+        h = held(slew=2.0)
+        h.follow_sim("floating", 0)
+        h.apply(("elbow",), (1.5,))
+        h.step(0.1)
+        assert h.follow_sim("floating", 1)
+        assert h.target_q.tolist() == h.q.tolist() == [-0.4, 0.9, 0.0]
+        assert not h.follow_sim("floating", 1)
+
+    def test_a_mode_change_takes_the_new_pose_and_gains(self) -> None:
+        h = held()
+        h.apply(("elbow",), (1.5,))
+        assert h.follow_sim("fixed", 0)
+        assert h.q.tolist() == [0.0, 0.0, 0.0]
+        assert h.gains()[0].tolist() == [10.0, 10.0, 3.0]
+
+    def test_an_unknown_mode_keeps_the_targets(self) -> None:
+        h = held()
+        with pytest.raises(RobotModelError):
+            h.follow_sim("flying", 0)  # type: ignore[arg-type]
+        assert h.mode == "floating"
+
+
+class TestSettings:
+    def test_defaults(self) -> None:
+        s = load_settings(BridgeSettings, [], env={})
+        assert (s.rate_hz, s.slew_rad_s, s.targets_rate_hz) == (100.0, 2.0, 30.0)
+
+    def test_env_and_flags(self) -> None:
+        s = load_settings(BridgeSettings, ["--slew-rad-s", "0"], env={"ZENSIM_RATE_HZ": "1000"})
+        assert (s.rate_hz, s.slew_rad_s) == (1000.0, 0.0)
+
+    @pytest.mark.parametrize("flag, value", [("--rate-hz", "1001"), ("--rate-hz", "0"), ("--slew-rad-s", "-1")])
+    def test_out_of_range_names_the_flag(self, flag: str, value: str) -> None:
+        with pytest.raises(SettingsError, match=flag):
+            load_settings(BridgeSettings, [flag, value], env={})
+
+
+class TestLocalFiles:
+    def test_bundled_g1_gives_both_modes(self) -> None:
+        model = RobotModel.from_files("g1", None, None)
+        assert len(model.joint_names) == 29 and model.mode == "floating"
+        assert model.has_mode("fixed") and model.has_mode("floating")
+        knee = model.joint_names.index("left_knee_joint")
+        assert model.default_q["floating"][knee] == pytest.approx(0.9)
+        assert model.kp["floating"][knee] != model.kp["fixed"][knee]
+        assert np.all(model.q_min < model.q_max)

@@ -1,0 +1,20 @@
+"""The docs that describe settings stay true: each service README holds its generated settings table."""
+
+from __future__ import annotations
+
+import pytest
+
+from support import REPO
+from zensim.common.settings import settings_table
+from zensim.bridge.settings import BridgeSettings
+from zensim.sim.settings import SimSettings
+from zensim.viz.settings import VizSettings
+
+
+@pytest.mark.parametrize(
+    "readme, settings", [("services/sim/README.md", SimSettings), ("services/bridge/README.md", BridgeSettings),
+     ("services/viz/README.md", VizSettings)]
+)
+def test_service_readme_lists_every_setting(readme: str, settings: type) -> None:
+    """Paste `settings_table(...)` output into the README when this fails."""
+    assert settings_table(settings) in (REPO / readme).read_text()

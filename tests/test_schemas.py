@@ -1,0 +1,198 @@
+"""The wire contract: every message round-trips in msgpack and JSON, bad input fails loudly."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import msgspec
+import pytest
+
+from zensim.schemas import (
+    WIRE_TYPES,
+    Codec,
+    DecodeError,
+    JointState,
+    JointTargets,
+    Keys,
+    MotorCommand,
+    ResetRequest,
+    StepRequest,
+    check_robot_id,
+    decode_scalar,
+    is_json,
+)
+from zensim.schemas import generate
+from zensim.schemas.keys import KEY_TABLE
+from support import REPO
+
+SAMPLES = {
+    "joint_state": dict(sim_time_s=1.5, seq=7, q=[0.1, 0.2], dq=[0.0, -1.0], tau=[3.0, 4.0]),
+    "odometry": dict(sim_time_s=1.5, seq=7, pos=[0, 0, 0.79], quat_wxyz=[1, 0, 0, 0], lin_vel_world=[0, 0, 0], ang_vel_body=[0, 0, 0]),
+    "imu": dict(sim_time_s=1.5, seq=7, quat_wxyz=[1, 0, 0, 0], gyro=[0, 0, 0], accel=[0, 0, 9.81]),
+    "sim_status": dict(sim_time_s=1.0, rtf=0.99, paused=False, mode="floating", fallen=False, rejected_commands=3, command_age_s=0.01),
+    "motor_command": dict(names=["a", "b"], q=[0.1, 0.2], kp=[100, 100], kd=[1, 1], dq=[0, 0], tau=[0, 0]),
+    "joint_targets": dict(names=["a"], q=[0.5]),
+    "bridge_report": dict(key="zensim/g1/cmd/joints", accepted=False, error="unknown joint(s): x"),
+    "reset_request": dict(names=["a"], q=[0.3], base_height_m=0.8, mode="fixed"),
+    "pause_request": {},
+    "resume_request": {},
+    "step_request": dict(n=5),
+    "mode_request": dict(mode="fixed"),
+    "ctl_reply": dict(ok=False, error="nope", sim_time_s=2.0, paused=True, mode="fixed", steps=3),
+    "robot_info": dict(
+        robot="g1", model="g1_29dof", schema_version=1, joint_names=["a"], q_min=[-1], q_max=[1], effort_limit=[10],
+        velocity_limit=[5], default_q={"floating": [0.0], "fixed": [0.0]},
+        gains={"floating": {"kp": [100], "kd": [1]}, "fixed": {"kp": [50], "kd": [0.5]}},
+        base_height_m={"floating": 0.85, "fixed": 0.79}, mode="floating", timestep_s=0.002, state_rate_hz=100,
+        status_rate_hz=10, watchdog_timeout_s=0.5, mesh_paths=["meshes/a.STL"], keys=[msgspec.to_builtins(KEY_TABLE[0])],
+    ),
+}
+
+
+def tag(message_type: type) -> str:
+    return generate.tag_of(message_type)
+
+
+def test_every_wire_type_has_a_sample() -> None:
+    assert {tag(t) for t in WIRE_TYPES} == set(SAMPLES)
+
+
+@pytest.mark.parametrize("message_type", WIRE_TYPES, ids=tag)
+@pytest.mark.parametrize("fmt", ["msgpack", "json"])
+def test_round_trip(message_type: type, fmt: str) -> None:
+    codec = Codec(message_type)
+    message = msgspec.convert(SAMPLES[tag(message_type)], message_type)
+    assert codec.decode(codec.encode(message, fmt)) == message  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("message_type", WIRE_TYPES, ids=tag)
+def test_json_needs_no_type_tag(message_type: type) -> None:
+    """A client typing JSON by hand leaves the tag out: the key says the type."""
+    payload = json.dumps(SAMPLES[tag(message_type)]).encode()
+    assert Codec(message_type).decode(payload, encoding=None) == msgspec.convert(SAMPLES[tag(message_type)], message_type)
+
+
+def test_writers_tag_their_messages() -> None:
+    encoded = json.loads(Codec(JointTargets).encode(JointTargets(names=("a",), q=(1.0,)), "json"))
+    assert encoded["type"] == "joint_targets"
+
+
+def test_wrong_tag_is_rejected() -> None:
+    with pytest.raises(DecodeError, match="type"):
+        Codec(JointTargets).decode(b'{"type": "motor_command", "names": ["a"], "q": [1]}')
+
+
+@pytest.mark.parametrize(
+    "payload, field",
+    [
+        (b'{"q": [0.1, "x"]}', "q[1]"),
+        (b'{"q": [0.1], "names": ["a", "b"]}', "q"),
+        (b'{"q": [0.1, 0.2], "kp": [1.0]}', "kp"),
+        (b'{"q": [0.1], "kd": [-1.0]}', "kd[0]"),
+        (b'{"q": [1e999]}', "q[0]"),
+        (b'{"names": ["a", "a"], "q": [1, 2]}', "names"),
+        (b'{"dq": [1]}', "q"),
+        (b'{"q": 3}', "q"),
+    ],
+)
+def test_bad_motor_command_names_the_field(payload: bytes, field: str) -> None:
+    with pytest.raises(DecodeError) as info:
+        Codec(MotorCommand).decode(payload)
+    assert field in str(info.value)
+
+
+@pytest.mark.parametrize("field", ["q", "dq", "kp", "kd", "tau"])
+def test_nan_in_msgpack_command_is_rejected(field: str) -> None:
+    fields = {"q": [0.0, 0.0], field: [0.0, math.nan]}
+    with pytest.raises(DecodeError, match=rf"`{field}\[1\]` must be a finite number"):
+        Codec(MotorCommand).decode(msgspec.msgpack.encode(fields))
+
+
+@pytest.mark.parametrize("payload", [b"\xff\x00\x13", b"{not json", b"\x93\x01\x02\x03", b"[1, 2]", b"null"])
+def test_malformed_bytes_raise_decode_error(payload: bytes) -> None:
+    with pytest.raises(DecodeError, match="invalid MotorCommand"):
+        Codec(MotorCommand).decode(payload)
+
+
+def test_joint_targets_lengths_must_match() -> None:
+    with pytest.raises(DecodeError, match="`q` has 1 values but `names` has 2"):
+        Codec(JointTargets).decode(b'{"names": ["a", "b"], "q": [1]}')
+
+
+def test_step_request_is_bounded() -> None:
+    assert Codec(StepRequest).decode(b"").n == 1
+    with pytest.raises(DecodeError, match="`n` must be in"):
+        Codec(StepRequest).decode(b'{"n": 0}')
+
+
+def test_empty_payload_means_defaults() -> None:
+    assert Codec(ResetRequest).decode(b"") == ResetRequest()
+
+
+def test_json_is_recognised_by_encoding_or_content() -> None:
+    assert is_json(b'{"q": [1]}', None)
+    assert is_json(b' {"q": [1]}', "zenoh/bytes")
+    assert is_json(b"anything", "application/json")
+    assert not is_json(msgspec.msgpack.encode({"q": [1.0]}), None)
+    assert not is_json(b'{"q": [1]}', "application/msgpack")
+
+
+@pytest.mark.parametrize(
+    "payload, encoding, value",
+    [(b"0.9", None, 0.9), (b" -1.25\n", "text/plain", -1.25), (b"2", "application/json", 2.0),
+     (msgspec.msgpack.encode(0.5), "application/msgpack", 0.5), (msgspec.msgpack.encode(-0.75), None, -0.75)],
+)
+def test_bare_numbers(payload: bytes, encoding: str | None, value: float) -> None:
+    assert decode_scalar(payload, encoding) == value
+
+
+@pytest.mark.parametrize("payload", [b"", b"abc", b"NaN", b"1e999", b'"0.5"', b"[1]"])
+def test_bad_bare_numbers(payload: bytes) -> None:
+    with pytest.raises(DecodeError):
+        decode_scalar(payload)
+
+
+def test_state_messages_carry_the_contract_field_names() -> None:
+    encoded = json.loads(Codec(JointState).encode(JointState(sim_time_s=0, seq=1, q=(), dq=(), tau=()), "json"))
+    assert {"sim_time_s", "seq", "q", "dq", "tau"} <= set(encoded)
+
+
+def test_json_schemas_are_up_to_date() -> None:
+    """Run `python -m zensim.schemas.generate` when this fails."""
+    rendered = generate.render()
+    on_disk = {p.name: p.read_text() for p in generate.SCHEMA_DIR.glob("*.json")}
+    assert on_disk == rendered
+
+
+class TestKeys:
+    def test_layout(self) -> None:
+        keys = Keys("g1")
+        assert keys.joints == "zensim/g1/state/joints"
+        assert keys.motors == "zensim/g1/cmd/motors"
+        assert keys.joint_target("left_knee_joint") == "zensim/g1/cmd/joint/left_knee_joint"
+        assert keys.joint_from_target_key("zensim/g1/cmd/joint/left_knee_joint") == "left_knee_joint"
+        assert keys.ctl("reset") == "zensim/g1/ctl/reset"
+        assert keys.alive("sim") == "zensim/g1/alive/sim"
+
+    def test_mesh_keys_hold_no_empty_chunks(self) -> None:
+        keys = Keys("g1")
+        assert keys.mesh("meshes/pelvis.STL") == "zensim/g1/info/mesh/meshes/pelvis.STL"
+        assert keys.mesh("package://g1_description/meshes/a.STL") == "zensim/g1/info/mesh/g1_description/meshes/a.STL"
+        assert keys.mesh_path(keys.mesh("meshes/a.STL")) == "meshes/a.STL"
+
+    @pytest.mark.parametrize("bad", ["G1", "g 1", "", "g1/x", "g*"])
+    def test_robot_id_is_checked(self, bad: str) -> None:
+        with pytest.raises(ValueError, match="robot id"):
+            check_robot_id(bad)
+        with pytest.raises(ValueError):
+            Keys(bad)
+
+    def test_unknown_ctl_verb(self) -> None:
+        with pytest.raises(ValueError, match="unknown ctl verb"):
+            Keys().ctl("explode")
+
+    def test_protocol_doc_lists_every_key(self) -> None:
+        doc = (REPO / "docs" / "protocol.md").read_text()
+        for row in KEY_TABLE:
+            assert f"`{row.key}`" in doc, f"docs/protocol.md misses {row.key}"

@@ -1,0 +1,50 @@
+"""`zensim check --service sim`: exit 0 when the service's liveliness token is seen.
+
+Used as the compose healthcheck and by scripts that wait for a stack to be up.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import msgspec
+
+from zensim.common.session import open_session
+from zensim.common.settings import ZenohSettings, settings_or_exit
+from zensim.schemas import Keys
+
+
+class CheckSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Settings of `zensim check`."""
+
+    service: str = "sim"
+    """Service whose liveliness token to look for (sim, bridge, viz, router)."""
+    robot_id: str = "g1"
+    """Robot id."""
+    timeout_s: float = 5.0
+    """Give up after this long."""
+    zenoh: ZenohSettings = ZenohSettings()
+    """Zenoh settings."""
+
+
+def is_alive(session, key: str, timeout_s: float) -> bool:
+    """Whether a liveliness token on `key` is seen within `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        remaining = deadline - time.monotonic()
+        replies = session.liveliness().get(key, timeout=max(0.1, min(1.0, remaining)))
+        if any(reply.ok is not None for reply in replies):
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.1)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    settings = settings_or_exit(CheckSettings, argv, "zensim check")
+    key = Keys(settings.robot_id).alive(settings.service)
+    with open_session(settings.zenoh) as session:
+        alive = is_alive(session, key, settings.timeout_s)
+    print(f"{key}: {'alive' if alive else 'not seen'}")
+    return 0 if alive else 1
