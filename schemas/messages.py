@@ -155,6 +155,9 @@ class SimStatus(Message, tag="sim_status", kw_only=True):
     """99th percentile of |actual - scheduled| step start over the last status period, s."""
     resets: int = 0
     """Resets since start (ctl/reset, mode switches, automatic fall resets)."""
+    run_id: str = ""
+    """Random id of this run of the sim process: a new value means the sim restarted (counters and
+    held commands start over). Empty from a sim that does not say."""
 
 
 # --- commands -------------------------------------------------------------
@@ -366,6 +369,8 @@ class RobotInfo(Message, tag="robot_info", kw_only=True):
     """Mesh files the URDF names, each served on info/mesh/{path}."""
     keys: tuple[KeyInfo, ...] = ()
     """The protocol table."""
+    run_id: str = ""
+    """Random id of this run of the sim process, as in SimStatus.run_id."""
 
 
 WIRE_TYPES: tuple[type[Message], ...] = (

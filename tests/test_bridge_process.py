@@ -262,3 +262,48 @@ def test_waits_for_the_sim_then_exits_0_on_sigterm(
     assert bridge.proc.wait(5) == 0, bridge.log()
     assert time.monotonic() - started < 2.0
     wait_for(lambda: not is_alive(zsession, keys.alive("bridge")), 5, "alive/bridge to disappear")
+
+
+TWO_JOINT_ARM = """<robot name="two_joint_arm">
+  <link name="base"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="upper"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
+    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="lower"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
+    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="shoulder" type="revolute"><parent link="base"/><child link="upper"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
+  <joint name="elbow" type="revolute"><parent link="upper"/><child link="lower"/>
+    <origin xyz="0 0 0.3"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
+</robot>
+"""
+
+
+def test_a_restarted_sim_is_learned_again_even_with_another_robot(fixed_rig: Rig, zsession: zenoh.Session, tmp_path) -> None:
+    """A new sim run (new run_id) is not the sim the bridge knew: no stale targets, no stale joint list."""
+    rig = fixed_rig
+    rig.start_bridge("--slew-rad-s", "0")
+    put_json(zsession, rig.keys.joint_targets, {"names": [ELBOW], "q": [1.0]})
+    wait_for(lambda: rig.commanded(ELBOW) == 1.0, 5, "the G1's elbow commanded to 1.0")
+    old_run = rig.info.run_id
+    assert old_run, "info/robot carries the sim's run id"
+
+    assert rig.sim.stop() == 0
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(TWO_JOINT_ARM)
+    rig.start_service("sim", "--urdf", str(urdf), "--mode", "fixed", "--rtf", "1")
+    new_run = wait_for(lambda: (s := rig.status.latest()) is not None and s.run_id != old_run and s.run_id, 30,
+                       "state/sim from the new sim")
+    commands = wait_for(lambda: [m for m in rig.motors_after(1) if len(m.q) == 2], 10,
+                        "motor commands for the two-joint arm")
+    assert commands[-1].q == (0.0, 0.0), "the bridge holds the new robot's default pose, not stale targets"
+
+    # The new sim obeys the bridge: its watchdog lets go and it stops rejecting commands.
+    def settled() -> SimStatus | None:
+        status = rig.status.latest()
+        return status if status is not None and status.run_id == new_run and not status.watchdog else None
+
+    first = wait_for(settled, 10, "the new sim fed by the bridge")
+    time.sleep(0.5)
+    later = rig.status.latest()
+    assert later is not None and not later.watchdog
+    assert later.rejected_commands == first.rejected_commands, later.last_error

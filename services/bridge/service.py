@@ -3,8 +3,9 @@
 Reads:
     {robot}/cmd/joints          JointTargets (msgpack or JSON), partial, merged into the held targets
     {robot}/cmd/joint/{joint}   a bare number (JSON, plain text or msgpack) for one joint
-    {robot}/state/sim           SimStatus: `mode` and `resets` (a change -> hold the default pose)
-    {robot}/info/robot          RobotInfo, queried at start until the sim answers
+    {robot}/state/sim           SimStatus: `mode` and `resets` (a change -> hold the default pose),
+                                `run_id` (a new one: the sim restarted -> learn the robot again)
+    {robot}/info/robot          RobotInfo, queried at start and after a sim restart
 Writes:
     {robot}/cmd/motors          MotorCommand (q, dq, kp, kd of the current mode) at rate_hz
     {robot}/state/targets       JointTargets, every joint, the commanded q, at targets_rate_hz
@@ -77,10 +78,15 @@ class Bridge:
     ticks (two sliders) are both kept, which a keep-the-last-sample buffer would not do.
     """
 
-    def __init__(self, session: zenoh.Session, keys: Keys, model: RobotModel, settings: BridgeSettings) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, model: RobotModel, settings: BridgeSettings,
+                 from_files: bool = False) -> None:
         self._keys = keys
-        self._held = HeldTargets(model, settings.slew_rad_s)
+        self._slew_rad_s = settings.slew_rad_s
+        self._from_files = from_files
         self._lock = threading.Lock()
+        self.sim_restarted = threading.Event()
+        """Set when state/sim comes from a new sim run and the robot must be learned again."""
+        self.adopt(model)
         self._rejected_total = 0
         self._clamped_total = 0
         self._targets_codec = Codec(JointTargets)
@@ -88,9 +94,6 @@ class Bridge:
         self._reject_log = RateLimitedLog(logger, 1.0)
         self._clamp_log = RateLimitedLog(logger, 1.0)
         self._status_log = RateLimitedLog(logger, 5.0)
-        self._gains: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
-            mode: (tuple(model.kp[mode].tolist()), tuple(model.kd[mode].tolist())) for mode in model.kp
-        }
         self._motors = TypedPublisher(session, keys.motors, MotorCommand)
         self._targets = TypedPublisher(session, keys.bridge_targets, JointTargets)
         self._reports = TypedPublisher(session, keys.bridge_report, BridgeReport)
@@ -99,6 +102,16 @@ class Bridge:
             session.declare_subscriber(keys.joint_target_any, self._on_joint),
             session.declare_subscriber(keys.sim_status, self._on_status),
         ]
+
+    def adopt(self, model: RobotModel) -> None:
+        """Take `model` as the robot (at start, and after a sim restart): hold its default pose."""
+        with self._lock:
+            self._held = HeldTargets(model, self._slew_rad_s)
+            self._gains: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
+                mode: (tuple(model.kp[mode].tolist()), tuple(model.kd[mode].tolist())) for mode in model.kp
+            }
+            self._run_id = model.run_id
+            self.sim_restarted.clear()
 
     # --- inputs (zenoh threads) -------------------------------------------
 
@@ -134,6 +147,14 @@ class Bridge:
             return
         try:
             with self._lock:
+                if self.sim_restarted.is_set():
+                    return  # the loop is learning the new sim's robot; its statuses count after that
+                if self._new_sim_run(status.run_id):
+                    logger.info("the sim restarted (run %s): holding the default pose", status.run_id)
+                    if not self._from_files:
+                        self.sim_restarted.set()  # it may run another robot: the loop asks info/robot
+                        return
+                    self._held = HeldTargets(self._held.model, self._slew_rad_s)
                 reset = self._held.follow_sim(status.mode, status.resets)
         except RobotModelError as exc:
             self._status_log.warning("%s; keeping the current targets", exc)
@@ -141,6 +162,17 @@ class Bridge:
         if reset:
             logger.info("sim reset or mode change (mode %s, resets %d): holding the default pose",
                         status.mode, status.resets)
+
+    def _new_sim_run(self, run_id: str) -> bool:
+        """Note the sim's run id; True when it replaces a known one, i.e. the sim restarted.
+
+        Call with the lock held. A restarted sim counts its resets from 0 again, so the reset
+        counter alone would miss it and the bridge would drive the new sim to stale targets.
+        """
+        if not run_id or run_id == self._run_id:
+            return False  # a sim that does not say, or the same run
+        known, self._run_id = self._run_id, run_id
+        return bool(known)  # the first id seen (robot from local files) is only a baseline
 
     def _report(self, key: str, verdict: Verdict) -> None:
         """Count, log (rate-limited) and publish the verdict on an input that was rejected or clamped."""
@@ -201,7 +233,7 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
             return 0
         logger.info("robot from the sim: %d joints, mode %s", len(model.joint_names), model.mode)
 
-    bridge = Bridge(session, keys, model, settings)
+    bridge = Bridge(session, keys, model, settings, from_files=bool(settings.robot or settings.urdf))
     token = session.liveliness().declare_token(keys.alive("bridge"))
     # The shared pacer keeps an absolute schedule (no drift) and drops debt after a stall.
     pacer = Pacer(1.0 / settings.rate_hz, rtf=1.0)
@@ -212,6 +244,12 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
     last = time.monotonic() - 1.0 / settings.rate_hz
     try:
         while not stop.is_set():
+            if bridge.sim_restarted.is_set():
+                model = fetch_model(session, keys, settings.info_timeout_s, stop)
+                if model is None:
+                    break
+                bridge.adopt(model)
+                logger.info("robot from the restarted sim: %d joints, mode %s", len(model.joint_names), model.mode)
             now = time.monotonic()
             bridge.tick(now - last, targets_every > 0 and ticks % targets_every == 0)
             last = now

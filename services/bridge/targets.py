@@ -45,6 +45,8 @@ class RobotModel:
     kd: Mapping[str, np.ndarray]
     mode: Mode
     """The mode the robot is in when the description was taken."""
+    run_id: str = ""
+    """The sim run that described the robot (RobotInfo.run_id); empty for local files."""
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)
@@ -81,6 +83,7 @@ class RobotModel:
             kp={mode: np.asarray(g.kp, float) for mode, g in info.gains.items()},
             kd={mode: np.asarray(g.kd, float) for mode, g in info.gains.items()},
             mode=info.mode,
+            run_id=info.run_id,
         )
 
     @classmethod

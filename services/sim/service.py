@@ -19,10 +19,12 @@ import logging
 import queue
 import threading
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import msgspec
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
@@ -83,6 +85,9 @@ class SimService:
         self.sim = sim
         self.stop = stop
         self.keys = Keys(settings.robot_id)
+        # Tells clients (the bridge) that this is a new sim, not the one they knew: a restarted
+        # sim starts its reset counter at 0 again, so `resets` alone cannot say so.
+        self.run_id = uuid.uuid4().hex[:16]
         self.paused = settings.paused
         self.pacer = Pacer(sim.timestep_s, settings.rtf)
         self.jobs: queue.Queue[Job] = queue.Queue()
@@ -122,7 +127,7 @@ class SimService:
             if mode not in self._robots_by_mode:
                 self._robots_by_mode[mode] = build(sim.files, mode)  # type: ignore[arg-type]
         info = sim.robot_info(self.keys, self.settings.state_rate_hz, self.settings.status_rate_hz, self._robots_by_mode)
-        self._info = info
+        self._info = msgspec.structs.replace(info, run_id=self.run_id)
 
     def _on_info(self, query: zenoh.Query) -> None:
         data, encoding = payload_of(query)
@@ -276,6 +281,7 @@ class SimService:
                 target_rtf=self.settings.rtf,
                 step_jitter_p99_s=self.pacer.jitter_p99_s(),
                 resets=sim.resets,
+                run_id=self.run_id,
             )
         )
 
