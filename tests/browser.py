@@ -193,6 +193,27 @@ class Browser:
             " e.dispatchEvent(new Event('change', {bubbles: true})); return e.value; })()"
         )
 
+    def click(self, element_id: str) -> None:
+        """Click an element the way a user does: a mouse press and release at its centre.
+
+        The events go through chromium's input pipeline (hit testing included), so a button
+        hidden behind something else, or disabled, does not get the click.
+        """
+        x, y = self.eval(
+            f"(() => {{ const r = document.getElementById({json.dumps(element_id)}).getBoundingClientRect();"
+            " return [r.left + r.width / 2, r.top + r.height / 2]; })()"
+        )
+        for kind in ("mousePressed", "mouseReleased"):
+            self.send("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
+
+    def select(self, element_id: str, value: str) -> None:
+        """Choose an option of a <select> as a user does (the value changes, `change` fires)."""
+        self.eval(
+            f"(() => {{ const e = document.getElementById({json.dumps(element_id)});"
+            f" e.focus(); e.value = {json.dumps(value)};"
+            " e.dispatchEvent(new Event('change', {bubbles: true})); e.blur(); return e.value; })()"
+        )
+
     def log(self) -> str:
         self._log.flush()
         return self.log_path.read_text(errors="replace")[-4000:]

@@ -18,8 +18,8 @@ import pytest
 import zenoh
 
 from browser import Browser, chromium_binary, decode_png
-from support import REPO, Service, free_port, wait_for
-from zensim.schemas import Codec, JointState, Keys
+from support import REPO, Latest, Service, free_port, wait_for
+from zensim.schemas import Codec, JointState, Keys, SimStatus
 
 PANEL_WIDTH_PX = 320
 JOINT = "left_elbow_joint"
@@ -145,6 +145,37 @@ class TestVizPage:
 
         wait_for(ghost_on_target, 20, "the ghost's hand moved to the target and the robot's hand with it",
                  interval_s=0.3)
+        assert browser.eval("zensim.lastError") is None
+
+    def test_panel_buttons_pause_step_resume_switch_mode_and_reset(self, stack: Stack, browser: Browser) -> None:
+        open_page(browser, stack.url)
+        status = Latest(stack.session, stack.keys.sim_status, SimStatus)
+        joints = Latest(stack.session, stack.keys.joints, JointState)
+        status.wait(what="the sim's status")
+
+        def clicked(verb: str) -> None:
+            browser.eval("(zensim.lastReply = null, true)")
+            browser.click(f"btn-{verb}")
+            reply = browser.wait(f"zensim.lastReply && zensim.lastReply.verb === '{verb}' && zensim.lastReply", 10,
+                                 f"the reply to {verb} on the page")
+            assert reply["ok"], reply
+
+        clicked("pause")
+        paused = status.wait(lambda m: m.paused, what="the sim paused")
+        browser.wait("document.getElementById('sim-state').textContent.startsWith('paused')", 10, "'paused' shown")
+        before = joints.wait(lambda m: m.sim_time_s >= paused.sim_time_s).sim_time_s
+        clicked("step")
+        joints.wait(lambda m: m.sim_time_s == pytest.approx(before + paused.timestep_s, abs=1e-9),
+                    what="exactly one physics step")
+        clicked("resume")
+        status.wait(lambda m: not m.paused and m.sim_time_s > before + 0.1, what="the sim running again")
+
+        resets = status.value.resets
+        browser.select("mode", "floating")
+        status.wait(lambda m: m.mode == "floating", what="the sim in the floating mode")
+        browser.wait("document.getElementById('sim-state').textContent.includes('floating')", 10, "'floating' shown")
+        clicked("reset")
+        status.wait(lambda m: m.resets >= resets + 2, what="the mode switch and the reset counted")
         assert browser.eval("zensim.lastError") is None
 
     def test_page_comes_back_after_viz_restart(self, stack: Stack, browser: Browser) -> None:
