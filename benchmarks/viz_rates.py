@@ -9,9 +9,13 @@ loopback, then measures:
      acks at once), i.e. the viz's own rate, and the viz's CPU meanwhile;
   3. slider -> cmd/joints and slider -> first sim state movement latency,
      driving the slider through the page over the DevTools protocol;
-  4. the viz's resident memory before and after the streaming.
+  4. the viz's resident memory before and after the streaming;
+  5. with --soak-minutes N: N minutes more of streaming to chromium, a fast
+     client and a slow one (acks after 0.5 s), sampling the viz's resident
+     memory every 30 s, and the slow client's frame age at the end (a
+     growing lag would show there).
 
-    .venv/bin/python benchmarks/viz_rates.py [--seconds 10] [--rate-hz 60]
+    .venv/bin/python benchmarks/viz_rates.py [--seconds 10] [--rate-hz 60] [--soak-minutes 0]
 """
 
 from __future__ import annotations
@@ -52,11 +56,13 @@ def rss_mb(pid: int) -> float:
     return 0.0
 
 
-class FastClient:
-    """A websocket client that acks every frame at once: the most a browser could take."""
+class AckingClient:
+    """A websocket client that acks every frame after `ack_delay_s`: 0 is the most a browser could take."""
 
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, ack_delay_s: float = 0.0) -> None:
+        self.ack_delay_s = ack_delay_s
         self.frames = 0
+        self.last_frame_at = 0.0
         self.loop = asyncio.new_event_loop()
         self.stop = False
         self.thread = threading.Thread(target=self.loop.run_until_complete, args=(self._run(url),), daemon=True)
@@ -70,8 +76,38 @@ class FastClient:
                 return
             if isinstance(message, bytes) and message[0] == 2:
                 self.frames += 1
+                self.last_frame_at = time.monotonic()
+                if self.ack_delay_s:
+                    await asyncio.sleep(self.ack_delay_s)
                 await ws.write_message(json.dumps({"type": "ack"}))
         ws.close()
+
+
+def soak(port: int, pid: int, minutes: float) -> dict[str, object]:
+    """Stream to a fast and a slow client (beside the open chromium page) and watch the viz's memory."""
+    url = f"ws://127.0.0.1:{port}/ws"
+    fast, slow = AckingClient(url), AckingClient(url, ack_delay_s=0.5)
+    wait_for(lambda: fast.frames > 0 and slow.frames > 0, 10, "frames at both clients")
+    start, c0 = time.monotonic(), cpu_s(pid)
+    samples = [(0.0, rss_mb(pid))]
+    while time.monotonic() - start < minutes * 60:
+        time.sleep(min(30.0, max(0.0, minutes * 60 - (time.monotonic() - start))))
+        samples.append((time.monotonic() - start, rss_mb(pid)))
+        print(f"soak {samples[-1][0]:7.0f} s: viz RSS {samples[-1][1]:.1f} MB", file=sys.stderr, flush=True)
+    elapsed = time.monotonic() - start
+    fast_rate, slow_rate = fast.frames / elapsed, slow.frames / elapsed
+    slow_age = time.monotonic() - slow.last_frame_at
+    fast.stop = slow.stop = True
+    later_half = [mb for t, mb in samples if t >= elapsed / 2]
+    return {
+        "minutes": round(elapsed / 60, 1),
+        "viz_rss_mb_first_last_max": [round(samples[0][1], 1), round(samples[-1][1], 1), round(max(mb for _, mb in samples), 1)],
+        "viz_rss_mb_spread_second_half": round(max(later_half) - min(later_half), 1),
+        "viz_cpu_pct": round(100 * (cpu_s(pid) - c0) / elapsed, 1),
+        "fast_client_frames_per_s": round(fast_rate, 1),
+        "slow_client_frames_per_s": round(slow_rate, 2),
+        "slow_client_s_since_last_frame": round(slow_age, 2),
+    }
 
 
 def main() -> int:
@@ -79,6 +115,7 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=10.0, help="length of each rate measurement")
     parser.add_argument("--rate-hz", type=float, default=60.0, help="the viz's rate_hz")
     parser.add_argument("--moves", type=int, default=20, help="slider moves for the latency figure")
+    parser.add_argument("--soak-minutes", type=float, default=0.0, help="minutes of streaming for the memory soak")
     args = parser.parse_args()
 
     log_dir = Path(tempfile.mkdtemp(prefix="zensim-bench-"))
@@ -110,7 +147,7 @@ def main() -> int:
             results["viz_cpu_pct_chromium_only"] = round(100 * (c1 - c0) / (t1 - t0), 1)
 
             # 2. a fast client beside chromium
-            fast = FastClient(f"ws://127.0.0.1:{port}/ws")
+            fast = AckingClient(f"ws://127.0.0.1:{port}/ws")
             wait_for(lambda: fast.frames > 0, 10, "frames at the fast client")
             n0, f0, c0, t0 = fast.frames, browser.eval("zensim.framesApplied"), cpu_s(viz.proc.pid), time.monotonic()
             time.sleep(args.seconds)
@@ -168,6 +205,8 @@ def main() -> int:
             results["slider_to_cmd_joints"] = summary(to_cmd)
             results["slider_to_sim_motion"] = summary(to_move)
             results["viz_rss_mb_before_after"] = [round(rss0, 1), round(rss_mb(viz.proc.pid), 1)]
+            if args.soak_minutes > 0:
+                results["soak"] = soak(port, viz.proc.pid, args.soak_minutes)
     finally:
         for service in reversed(services):
             service.stop()
