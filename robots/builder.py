@@ -442,7 +442,10 @@ def build(files: RobotFiles, mode: Mode) -> Robot:
             data.qpos[robot.free_qpos_adr:robot.free_qpos_adr + 3] = 0.0
         model.body_pos[base_body_id] = 0.0
         mujoco.mj_kinematics(model, data)
-        height = SPAWN_CLEARANCE_M - _lowest_point_z(model, data)
+        lowest = _lowest_point_z(model, data)
+        # A robot with no collision geometry has no lowest point (inf): its base goes at the
+        # clearance height, not at -inf, which made every step NaN.
+        height = SPAWN_CLEARANCE_M - (lowest if math.isfinite(lowest) else 0.0)
         logger.info("%s: no %s.base_height_m, derived %.4f m from the model's lowest point", info.name, mode, height)
     robot.base_height_m = float(height)
     _place_base(robot, robot.base_height_m)

@@ -8,17 +8,20 @@ It declares the liveliness token `zensim/{robot}/alive/router`.
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Sequence
 
 import msgspec
+import zenoh
 
 from zensim.common.logs import setup_logging
-from zensim.common.session import open_session
-from zensim.common.settings import ZenohSettings, describe, settings_or_exit
-from zensim.common.shutdown import stop_on_signals
+from zensim.common.entry import serve
+from zensim.common.settings import ZenohSettings, settings_or_exit
 from zensim.schemas import Keys
 
 logger = logging.getLogger("zensim.router")
+
+PROG = "zensim router"
 
 
 class RouterSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -33,15 +36,15 @@ class RouterSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    settings = settings_or_exit(RouterSettings, argv, "zensim router")
+    settings = settings_or_exit(RouterSettings, argv, PROG)
     setup_logging(settings.log_level)
-    zenoh_settings = msgspec.structs.replace(settings.zenoh, mode="router")
-    stop = stop_on_signals()
-    logger.info("starting: %s", describe(settings))
-    with open_session(zenoh_settings) as session:
-        token = session.liveliness().declare_token(Keys(settings.robot_id).alive("router"))
-        logger.info("router up, listening on %s", ", ".join(zenoh_settings.listen) or "zenoh defaults")
-        stop.wait()
-        token.undeclare()
+    return serve(PROG, settings, _route, zenoh_settings=msgspec.structs.replace(settings.zenoh, mode="router"))
+
+
+def _route(session: zenoh.Session, settings: RouterSettings, stop: threading.Event) -> int:
+    token = session.liveliness().declare_token(Keys(settings.robot_id).alive("router"))
+    logger.info("router up, listening on %s", ", ".join(settings.zenoh.listen) or "zenoh defaults")
+    stop.wait()
+    token.undeclare()
     logger.info("router stopped")
     return 0

@@ -24,6 +24,7 @@ import time
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
+from zensim.common.session import StartupError
 from zensim.common.pacing import Pacer
 from zensim.common.wire import TypedPublisher, payload_of
 from zensim.schemas import (
@@ -223,8 +224,7 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
         try:
             model = RobotModel.from_files(settings.robot, settings.urdf, settings.control)
         except (OSError, ValueError) as exc:
-            logger.error("cannot load the robot files: %s", exc)
-            return 2
+            raise StartupError(f"cannot load the robot files (--robot / --urdf / --control): {bounded(str(exc), 400)}") from None
         logger.info("robot from local files: %d joints", len(model.joint_names))
     else:
         logger.info("asking the sim on %s", keys.robot_info)

@@ -32,6 +32,7 @@ import tornado.netutil
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
+from zensim.common.session import StartupError
 from zensim.common.wire import TypedPublisher, payload_of
 from zensim.schemas import (
     Codec,
@@ -322,9 +323,9 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
     try:
         sockets = tornado.netutil.bind_sockets(settings.port, address=settings.host)
     except OSError as exc:
-        logger.error("cannot serve on %s:%d: %s", settings.host, settings.port, exc)
         service.close()
-        return 1
+        raise StartupError(f"cannot serve the page on {settings.host}:{settings.port} "
+                           f"(--host / ZENSIM_HOST, --port / ZENSIM_PORT): {exc.strerror or exc}") from None
     server.add_sockets(sockets)
     port = sockets[0].getsockname()[1]
     logger.info("viz up: http://%s:%d/", settings.host, port)
