@@ -22,6 +22,11 @@ MIN_CAP_BYTES: Final = 4096
 SCALAR_CAP_BYTES: Final = 256
 """A bare number on cmd/joint/{joint}: `0.9`, a msgpack float, with whitespace to spare."""
 
+STATE_CAP_BYTES: Final = 256 * 1024
+"""A state sample read by a service that does not know the robot yet (the viz): generous, still bounded."""
+INFO_CAP_BYTES: Final = 8 * 1024 * 1024
+"""A RobotInfo reply: the protocol table and the mesh list included, with room for large robots."""
+
 _LONGEST_NUMBER: Final = -1.2345678901234567e-308
 """A float whose JSON spelling is as long as any (24 characters)."""
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from zensim.schemas import Mode, RobotInfo
+from zensim.schemas import Mode, RobotInfo, short_repr
 
 MAX_TICK_S = 0.1
 """Longest tick the slew limit accounts for: after a stall the q must not jump by seconds' worth."""
@@ -192,13 +192,14 @@ class HeldTargets:
             return Verdict(False, "names a joint more than once")
         unknown = [name for name in names if name not in self._index]
         if unknown:
-            return Verdict(False, f"unknown joint(s): {', '.join(map(str, unknown))}")
+            shown = ", ".join(short_repr(name) for name in unknown[:3])
+            return Verdict(False, f"unknown joint(s): {shown}" + (f" and {len(unknown) - 3} more" if len(unknown) > 3 else ""))
         for label, values in (("q", q), ("dq", dq)):
             if values is None:
                 continue
             for name, value in zip(names, values):
                 if isinstance(value, bool) or not isinstance(value, (int, float)):
-                    return Verdict(False, f"{label} of {name} is not a number: {value!r}")
+                    return Verdict(False, f"{label} of {name} is not a number: {short_repr(value)}")
                 if not math.isfinite(value):
                     return Verdict(False, f"{label} of {name} is not finite: {value}")
         idx = np.fromiter((self._index[name] for name in names), int, len(names))

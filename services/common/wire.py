@@ -56,6 +56,12 @@ def decode_input(sample: zenoh.Sample | zenoh.Query, codec: Codec[M], max_bytes:
     return codec.decode(*read_payload(sample, max_bytes))
 
 
+def error_text(reply_error: zenoh.ReplyError) -> str:
+    """The text of an error reply, bounded and safe whatever bytes it holds."""
+    payload = reply_error.payload
+    return bounded(payload.to_bytes()[:4096].decode("utf-8", errors="replace") if payload is not None else "")
+
+
 def is_wildcard(key_expr: object) -> bool:
     """True when a key expression can match several keys (`**`, `*`, `$*`)."""
     text = str(key_expr)
