@@ -3,6 +3,13 @@
 No `zenohd` binary is needed (none ships on PyPI or in Debian): a session
 opened with mode `router` routes for every peer and client that connects.
 It declares the liveliness token `zensim/{robot}/alive/router`.
+
+It also limits, per client link, how fast samples may arrive on the input
+keys (`zensim/*/cmd/**` puts, `zensim/*/ctl/**` queries): Zenoh's own
+downsampling, in Rust, before a flooding client's excess costs the sim a
+single Python instruction. Per link means one client's flood never eats
+another client's budget: the bridge's 100-1000 Hz commands pass untouched
+while a 10 kHz flood is cut to the limit (docs/protocol.md, "Bounds").
 """
 
 from __future__ import annotations
@@ -10,6 +17,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Sequence
+from typing import Annotated
 
 import msgspec
 import zenoh
@@ -17,7 +25,7 @@ import zenoh
 from zensim.common.logs import setup_logging
 from zensim.common.entry import serve
 from zensim.common.settings import ZenohSettings, settings_or_exit
-from zensim.schemas import Keys
+from zensim.schemas import ROOT, Keys
 
 logger = logging.getLogger("zensim.router")
 
@@ -33,12 +41,42 @@ class RouterSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """Python log level."""
     zenoh: ZenohSettings = ZenohSettings(mode="router", listen=("tcp/127.0.0.1:7447",))
     """Zenoh settings; mode is forced to router. Listen on tcp/0.0.0.0:7447 to accept other hosts."""
+    cmd_rate_limit_hz: Annotated[float, msgspec.Meta(ge=0, le=1_000_000)] = 2000.0
+    """Most samples per second one client link may put on a zensim/*/cmd/** key (the excess is dropped); 0: no limit."""
+    ctl_rate_limit_hz: Annotated[float, msgspec.Meta(ge=0, le=1_000_000)] = 1000.0
+    """Most queries per second one client link may send on a zensim/*/ctl/** key; 0: no limit."""
+    input_size_limit_bytes: Annotated[int, msgspec.Meta(ge=0)] = 65536
+    """Largest payload a client may put on zensim/*/cmd/** or send with a zensim/*/ctl/** query; 0: no limit."""
+
+
+def input_limits(settings: RouterSettings) -> dict[str, object]:
+    """The router's guards on the input keys, ingress only: per-link rates and a size limit.
+
+    Zenoh's `downsampling` keeps at most `freq` samples per second per link and rule; its
+    `low_pass_filter` drops payloads over `size_limit`. Both run in the router, in Rust.
+    """
+    config: dict[str, object] = {}
+    inputs = [f"{ROOT}/*/cmd/**", f"{ROOT}/*/ctl/**"]
+    if settings.input_size_limit_bytes:
+        config["low_pass_filter"] = [{"id": "zensim-inputs", "flows": ["ingress"], "messages": ["put", "query"],
+                                      "key_exprs": inputs, "size_limit": settings.input_size_limit_bytes}]
+    rules = []
+    if settings.cmd_rate_limit_hz:
+        rules.append({"id": "zensim-cmd", "flows": ["ingress"], "messages": ["put", "delete"],
+                      "rules": [{"key_expr": f"{ROOT}/*/cmd/**", "freq": settings.cmd_rate_limit_hz}]})
+    if settings.ctl_rate_limit_hz:
+        rules.append({"id": "zensim-ctl", "flows": ["ingress"], "messages": ["query"],
+                      "rules": [{"key_expr": f"{ROOT}/*/ctl/**", "freq": settings.ctl_rate_limit_hz}]})
+    if rules:
+        config["downsampling"] = rules
+    return config
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(RouterSettings, argv, PROG)
     setup_logging(settings.log_level)
-    return serve(PROG, settings, _route, zenoh_settings=msgspec.structs.replace(settings.zenoh, mode="router"))
+    return serve(PROG, settings, _route, zenoh_settings=msgspec.structs.replace(settings.zenoh, mode="router"),
+                 extra_config=input_limits(settings))
 
 
 def _route(session: zenoh.Session, settings: RouterSettings, stop: threading.Event) -> int:

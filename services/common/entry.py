@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Protocol, TypeVar
 
 import zenoh
@@ -45,7 +45,8 @@ def fail(prog: str, message: str) -> int:
     return 2
 
 
-def serve(prog: str, settings: S, run: Run, zenoh_settings: ZenohSettings | None = None) -> int:
+def serve(prog: str, settings: S, run: Run, zenoh_settings: ZenohSettings | None = None,
+          extra_config: Mapping[str, object] | None = None) -> int:
     """Open the session, call `run(session, settings, stop)` until SIGINT/SIGTERM, close in bounded time.
 
     Args:
@@ -53,6 +54,7 @@ def serve(prog: str, settings: S, run: Run, zenoh_settings: ZenohSettings | None
         settings: the service's settings, logged once.
         run: the service; returns its exit code and raises StartupError for what the user can fix.
         zenoh_settings: the session's settings when they differ from `settings.zenoh` (the router).
+        extra_config: zenoh config paths the service sets for itself (the router's rate limits).
 
     Returns:
         The exit code: run's, or 2 for a startup failure.
@@ -60,7 +62,7 @@ def serve(prog: str, settings: S, run: Run, zenoh_settings: ZenohSettings | None
     stop = stop_on_signals()
     logger.info("starting: %s", describe(settings))  # type: ignore[arg-type]
     try:
-        session = open_session(zenoh_settings or settings.zenoh)
+        session = open_session(zenoh_settings or settings.zenoh, extra_config)
     except StartupError as exc:
         return fail(prog, str(exc))
     try:

@@ -6,6 +6,7 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Mapping
 
 import zenoh
 
@@ -24,8 +25,12 @@ WAITING_LOG_PERIOD_S = 5.0
 """How often a client waiting for its router says so."""
 
 
-def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
-    """A zenoh.Config: the config file if given, overridden by the explicit settings.
+def zenoh_config(settings: ZenohSettings, extra: Mapping[str, object] | None = None) -> zenoh.Config:
+    """A zenoh.Config: the config file if given, overridden by the explicit settings, then by `extra`.
+
+    Args:
+        settings: the service's Zenoh settings.
+        extra: config paths (`downsampling`) and values a service sets for itself.
 
     Raises:
         zenoh.ZError: the config file cannot be read or a value is refused.
@@ -44,10 +49,12 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     if settings.mode == "router":
         # Without this a router waits 500 ms of scouting before it opens.
         conf.insert_json5("scouting/delay", "0")
+    for path, value in (extra or {}).items():
+        conf.insert_json5(path, json.dumps(value))
     return conf
 
 
-def open_session(settings: ZenohSettings) -> zenoh.Session:
+def open_session(settings: ZenohSettings, extra: Mapping[str, object] | None = None) -> zenoh.Session:
     """Open a session; close it when done (`zensim.common.entry.serve` does, in bounded time).
 
     A client waits for its router with no timeout, saying so every few
@@ -59,7 +66,7 @@ def open_session(settings: ZenohSettings) -> zenoh.Session:
         StartupError: the config file, an endpoint or a port is refused; the text names the setting.
     """
     try:
-        config = zenoh_config(settings)
+        config = zenoh_config(settings, extra)
     except zenoh.ZError as exc:
         raise StartupError(f"cannot use the zenoh config file (--zenoh-config-file / ZENSIM_ZENOH_CONFIG_FILE "
                            f"{settings.config_file}): {_first_line(exc)}") from None

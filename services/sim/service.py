@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import sys
 import threading
 import time
 import uuid
@@ -68,6 +69,10 @@ logger = logging.getLogger("zensim.sim")
 REQUEST_TIMEOUT_S = 60.0
 """Longest a control request waits for the loop (a 100000-step ctl/step takes a few s)."""
 PAUSED_POLL_S = 0.005
+COMMAND_RING = 32
+"""Newest command samples zenoh keeps for the decoding thread; older ones are dropped under a flood."""
+GIL_SWITCH_INTERVAL_S = 0.0002
+"""Longest the physics thread waits for the GIL while callback threads hold it (CPython default: 5 ms)."""
 FAST_BATCH_STEPS = 10
 """Steps run back to back at rtf 0 with wall-clock states (0.2-0.4 ms of wall time)."""
 
@@ -115,8 +120,14 @@ class SimService:
         self.pub_odom = TypedPublisher(session, keys.odom, Odometry)
         self.pub_imu = TypedPublisher(session, keys.imu, Imu)
         self.pub_status = TypedPublisher(session, keys.sim_status, SimStatus)
+        # Commands arrive through a small ring kept by zenoh (in Rust): when a flood outruns the
+        # decoding thread, the oldest samples are dropped there, before they cost the GIL anything,
+        # and the newest command never waits behind a backlog (a plain callback queues 256 samples
+        # and then pushes back on the router, which delayed a good client's commands by 100 ms).
+        self._commands = session.declare_subscriber(keys.motors, zenoh.handlers.RingChannel(COMMAND_RING))
+        self._command_thread = threading.Thread(target=self._drain_commands, name="sim-commands", daemon=True)
+        self._command_thread.start()
         self._declared = [
-            session.declare_subscriber(keys.motors, self._on_command),
             session.declare_queryable(keys.ctl("reset"), self._ctl("reset", ResetRequest, self._reset)),
             session.declare_queryable(keys.ctl("pause"), self._ctl("pause", PauseRequest, self._pause)),
             session.declare_queryable(keys.ctl("resume"), self._ctl("resume", ResumeRequest, self._resume)),
@@ -175,6 +186,15 @@ class SimService:
         return is_json(*payload_of(query))
 
     # --- commands --------------------------------------------------------
+
+    def _drain_commands(self) -> None:
+        """Thread: decode and apply commands from the ring until the subscriber is undeclared."""
+        while True:
+            try:
+                sample = self._commands.recv()
+            except zenoh.ZError:  # undeclared at shutdown
+                return
+            self._on_command(sample)
 
     def _on_command(self, sample: zenoh.Sample) -> None:
         try:
@@ -347,6 +367,11 @@ class SimService:
 
     def run(self) -> None:
         """Step, publish and serve until the stop event is set."""
+        # Zenoh callback threads (commands, queries) take the GIL for a few microseconds per sample.
+        # Under a flood they take it back to back, and CPython hands it to a waiting thread only
+        # after the switch interval (5 ms by default): the physics loop, waking every 2 ms step,
+        # then waits up to 5 ms each time. A short interval bounds that wait.
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         sim, settings = self.sim, self.settings
         publish_every = max(1, round(1.0 / (settings.state_rate_hz * sim.timestep_s)))
         publish_period_s = 1.0 / settings.state_rate_hz
@@ -397,6 +422,7 @@ class SimService:
 
     def close(self) -> None:
         self.token.undeclare()
+        self._commands.undeclare()
         for entity in self._declared:
             entity.undeclare()
         for publisher in (self.pub_joints, self.pub_odom, self.pub_imu, self.pub_status):
