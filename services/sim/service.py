@@ -189,9 +189,12 @@ class SimService:
 
     def _drain_commands(self) -> None:
         """Thread: decode and apply commands from the ring until the subscriber is undeclared."""
+        # recv() on the handler, not the subscriber: undeclaring a subscriber that another thread
+        # is blocked in is refused ("Already borrowed"); the handler's recv just ends with ZError.
+        ring = self._commands.handler
         while True:
             try:
-                sample = self._commands.recv()
+                sample = ring.recv()
             except zenoh.ZError:  # undeclared at shutdown
                 return
             self._on_command(sample)
@@ -423,6 +426,7 @@ class SimService:
     def close(self) -> None:
         self.token.undeclare()
         self._commands.undeclare()
+        self._command_thread.join(1.0)
         for entity in self._declared:
             entity.undeclare()
         for publisher in (self.pub_joints, self.pub_odom, self.pub_imu, self.pub_status):
