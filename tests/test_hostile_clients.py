@@ -161,20 +161,24 @@ class TestBoundedEcho:
         wait_alive(zsession, keys)
         bridge = start_service("bridge")
         wait_alive(zsession, keys, "bridge")
-        long_name = "j" * 15_000  # under the cap: decoded, refused as an unknown joint
-        huge_name = "j" * 10_000_000  # over the cap: refused before decoding
-        for name in (long_name, huge_name):
+        long_name = "j" * 15_000  # under the sim's cap: decoded, refused as an unknown joint
+        over_cap = "j" * 40_000  # over the sim's cap (20 KiB for the G1): refused before decoding
+        huge_name = "j" * 10_000_000  # over the router's size limit (64 KiB): dropped there
+        for name in (long_name, over_cap):
             seen = status.wait(what="a status").rejected_commands
             put_json(zsession, keys.motors, {"names": [name], "q": [0.1]})
             refused = status_when(status, lambda m: m.rejected_commands == seen + 1, "the long name refused")
             assert len(refused.last_error) <= MAX_ERROR_CHARS
         assert "cap" in status.value.last_error
+        seen = status.value.rejected_commands
+        put_json(zsession, keys.motors, {"names": [huge_name], "q": [0.1]})
         count = len(raw_sizes)
-        wait_for(lambda: len(raw_sizes) > count + 3, 5, "more statuses")
+        wait_for(lambda: len(raw_sizes) > count + 5, 5, "more statuses")
+        assert status.value.rejected_commands == seen, "the router let a 10 MB payload through to the sim"
         assert max(raw_sizes[count:]) < 2048, f"SimStatus grew to {max(raw_sizes[count:])} bytes"
-        for name in (long_name, huge_name):
+        for i, name in enumerate((long_name, over_cap), start=1):
             put_json(zsession, keys.joint_targets, {"names": [name], "q": [0.1]})
-            report = reports.wait(lambda m, n=name: m.rejected_total >= (1 if n is long_name else 2), what="a report")
+            report = reports.wait(lambda m, i=i: m.rejected_total >= i, what="a report")
             assert len(report.error) <= MAX_ERROR_CHARS and len(report.key) <= 200
         assert longest_log_line(sim) < 1000 and longest_log_line(bridge) < 1000
         sizes_sub.undeclare()
@@ -304,13 +308,13 @@ class TestSettingsAndShutdown:
         assert bridge.stop() == 0
         assert time.monotonic() - started < 2.0
 
-    @pytest.mark.parametrize("command", ["sim", "bridge"])
+    @pytest.mark.parametrize("command", ["sim", "bridge", "viz"])
     def test_sigterm_exits_0_within_2_s_with_the_router_frozen(self, command, router_endpoint, start_service, zsession, robot_id):
         keys = sim_keys(robot_id)
         status = Latest(zsession, keys.sim_status, SimStatus)
         sim = start_service("sim", "--mode", "fixed")
         wait_alive(zsession, keys)
-        service = sim if command == "sim" else start_service("bridge")
+        service = sim if command == "sim" else start_service(command, *(["--port", "0"] if command == "viz" else []))
         wait_alive(zsession, keys, command)
         status.wait(what="a status")
         router_pid = _router_pid(router_endpoint)
@@ -334,3 +338,66 @@ def _router_pid(endpoint: str) -> int:
     out = subprocess.run(["ss", "-Hltnp", f"sport = :{port}"], capture_output=True, text=True).stdout
     pid = out.split("pid=")[1].split(",")[0]
     return int(pid)
+
+
+FLOODER = r"""
+import json, random, sys, time, zenoh
+endpoint, root, seconds, rate = sys.argv[1], sys.argv[2], float(sys.argv[3]), float(sys.argv[4])
+rng = random.Random(6)
+keys = [f"{root}/cmd/motors", f"{root}/cmd/joints", f"{root}/cmd/joint/left_elbow_joint", f"{root}/state/sim",
+        f"{root}/state/joints", f"{root}/cmd/joint/x", f"{root}/ctl/pause", f"{root}/info/robot", f"{root}/cmd/motors"]
+payloads = [bytes(rng.randrange(256) for _ in range(rng.randrange(1, 300))) for _ in range(400)]
+payloads += [b'{"q": [0.1], "x": ' + b"[" * 2000 + b"]" * 2000 + b"}", b'{"names": ["\xff"], "q": [1]}']
+conf = zenoh.Config()
+conf.insert_json5("mode", '"client"')
+conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+with zenoh.open(conf) as session:
+    pubs = [session.declare_publisher(k) for k in keys]
+    start, sent = time.perf_counter(), 0
+    while time.perf_counter() - start < seconds:
+        if start + sent / rate > time.perf_counter():
+            time.sleep(0.0005)
+            continue
+        pubs[sent % len(pubs)].put(payloads[sent % len(payloads)])
+        sent += 1
+    print("sent", sent, flush=True)
+"""
+
+
+class TestFloods:
+    """Finding 6: 4 kHz of malformed samples over 9 keys cut states to 34 Hz, RTF to 0.0075, and flipped the watchdog."""
+
+    def test_a_garbage_flood_neither_stalls_the_physics_nor_flips_the_watchdog(self, router_endpoint, start_service,
+                                                                                zsession, robot_id, tmp_path):
+        keys = sim_keys(robot_id)
+        statuses: list[SimStatus] = []
+        codec = msgspec.msgpack.Decoder(SimStatus)
+        status_sub = zsession.declare_subscriber(keys.sim_status, lambda s: statuses.append(codec.decode(s.payload.to_bytes())))
+        state_times: list[float] = []
+        state_sub = zsession.declare_subscriber(keys.joints, lambda s: state_times.append(time.monotonic()))
+        sim = start_service("sim", "--mode", "fixed")
+        bridge = start_service("bridge", "--rate-hz", "100")  # the good client: commands at 100 Hz
+        wait_alive(zsession, keys)
+        wait_alive(zsession, keys, "bridge")
+        wait_for(lambda: statuses and not statuses[-1].watchdog, 10, "the bridge's commands arriving")
+        seconds = 5.0
+        flooder = subprocess.Popen([sys.executable, "-c", FLOODER, router_endpoint, keys.root, str(seconds), "4000"],
+                                   stdout=subprocess.PIPE, text=True)
+        time.sleep(0.5)
+        start, first_status = time.monotonic(), len(statuses)
+        out, _ = flooder.communicate(timeout=seconds + 20)
+        end = time.monotonic()
+        during = statuses[first_status:]
+        sent = int(out.split()[-1])
+        assert sent > 0.8 * 4000 * seconds, f"the flooder sent only {sent}"
+        assert during and not any(s.watchdog for s in during), "the watchdog flipped while the bridge kept commanding"
+        wall = during[-1].sim_time_s - during[0].sim_time_s
+        assert wall > 0.8 * (end - start - 0.5), f"sim time advanced {wall:.2f} s in {end - start:.2f} s of wall time"
+        states = [t for t in state_times if start <= t <= end]
+        assert len(states) > 0.7 * 100 * (end - start), f"{len(states)} states in {end - start:.1f} s (100 Hz nominal)"
+        assert during[-1].rejected_commands > 0
+        assert sim.alive() and bridge.alive()
+        no_traceback(sim, bridge)
+        status_sub.undeclare()
+        state_sub.undeclare()

@@ -69,8 +69,11 @@ logger = logging.getLogger("zensim.sim")
 REQUEST_TIMEOUT_S = 60.0
 """Longest a control request waits for the loop (a 100000-step ctl/step takes a few s)."""
 PAUSED_POLL_S = 0.005
-COMMAND_RING = 32
-"""Newest command samples zenoh keeps for the decoding thread; older ones are dropped under a flood."""
+COMMAND_RING = 1024
+"""Newest command samples zenoh keeps for the decoding thread; older ones are dropped under a flood.
+
+Large enough that a burst of 1000 bad samples is still counted whole (the decoding thread clears
+about 50 000 a second); small enough that a command waits behind at most ~20 ms of decoding."""
 GIL_SWITCH_INTERVAL_S = 0.0002
 """Longest the physics thread waits for the GIL while callback threads hold it (CPython default: 5 ms)."""
 FAST_BATCH_STEPS = 10
