@@ -9,7 +9,8 @@
     zensim robot    build or inspect a robot model
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
-flags; see docs/settings.md.
+flags; each service's README has its table (services/*/README.md, the
+router's in docs/deployment.md).
 """
 
 from __future__ import annotations

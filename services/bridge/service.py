@@ -42,7 +42,7 @@ from zensim.schemas import (
 from zensim.schemas.bounds import INFO_CAP_BYTES, SCALAR_CAP_BYTES, vector_cap_bytes
 
 from .settings import BridgeSettings
-from .targets import HeldTargets, RobotModel, RobotModelError, Verdict
+from .targets import HeldTargets, RobotModel, UnusableRobotInfo, Verdict
 
 logger = logging.getLogger("zensim.bridge")
 
@@ -65,7 +65,7 @@ def fetch_model(session: zenoh.Session, keys: Keys, timeout_s: float, stop: thre
                 continue
             try:
                 return RobotModel.from_info(codec.decode(*read_payload(reply.ok, INFO_CAP_BYTES)))
-            except (DecodeError, RobotModelError) as exc:
+            except (DecodeError, UnusableRobotInfo) as exc:
                 waiting.warning("unusable RobotInfo on %s: %s", keys.robot_info, exc)
         waiting.warning("no sim answers on %s yet; retrying", keys.robot_info)
         stop.wait(RETRY_PAUSE_S)
@@ -163,7 +163,7 @@ class Bridge:
                         return
                     self._held = HeldTargets(self._held.model, self._slew_rad_s)
                 reset = self._held.follow_sim(status.mode, status.resets)
-        except RobotModelError as exc:
+        except UnusableRobotInfo as exc:
             self._status_log.warning("%s; keeping the current targets", exc)
             return
         if reset:
