@@ -312,7 +312,7 @@ class TestSettingsAndShutdown:
     def test_sigterm_exits_0_within_2_s_with_the_router_frozen(self, command, router_endpoint, start_service, zsession, robot_id):
         keys = sim_keys(robot_id)
         status = Latest(zsession, keys.sim_status, SimStatus)
-        sim = start_service("sim", "--mode", "fixed")
+        sim = start_service("sim", "--mode", "fixed", "--state-rate-hz", "500")  # much traffic to back up
         wait_alive(zsession, keys)
         service = sim if command == "sim" else start_service(command, *(["--port", "0"] if command == "viz" else []))
         wait_alive(zsession, keys, command)
@@ -320,7 +320,7 @@ class TestSettingsAndShutdown:
         router_pid = _router_pid(router_endpoint)
         os.kill(router_pid, signal.SIGSTOP)
         try:
-            time.sleep(0.5)
+            time.sleep(3.0)  # long enough for the links' send buffers to fill: then closing blocks
             started = time.monotonic()
             service.signal(signal.SIGTERM)
             code = service.proc.wait(10)
