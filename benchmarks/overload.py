@@ -120,6 +120,8 @@ def main() -> int:
     parser.add_argument("--trials", type=int, default=150, help="latency trials per phase")
     parser.add_argument("--state-rate-hz", default="500")
     parser.add_argument("--no-nice", action="store_true", help="run the flooders at normal priority")
+    parser.add_argument("--cmd-rate-limit-hz", default="0",
+                        help="the router's per-link rate limit on cmd/** (zensim router --cmd-rate-limit-hz); 0: off")
     args = parser.parse_args()
 
     keys = Keys("overload")
@@ -130,7 +132,8 @@ def main() -> int:
     results: dict[str, dict] = {}
     flood_rates: list[dict] = []
     try:
-        router = procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
+        router = procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "",
+                              "--cmd-rate-limit-hz", args.cmd_rate_limit_hz)
         conf = zenoh.Config()
         conf.insert_json5("mode", '"client"')
         conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -206,7 +209,7 @@ def main() -> int:
     finally:
         procs.stop_all()
 
-    print(f"\nflooders (niced: {not args.no_nice}):")
+    print(f"\nrouter rate limit on cmd/**: {args.cmd_rate_limit_hz} Hz per link; flooders (niced: {not args.no_nice}):")
     for rate in flood_rates:
         print("  ", rate)
     print(f"\n{'phase':<7} {'worst 1 s RTF':>14} {'states/s':>9} {'worst 1 s':>9} {'p50 ms':>7} {'p99 ms':>7} "
