@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import random
 import sys
 import threading
 import time
@@ -34,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from bridge_latency import JOINT, STEP_RAD, Processes, TorqueProbe, free_port, run_trials, wait_until
+from bridge_latency import Processes, client_config, elbow_trials, free_port, run_trials
 from zensim.common.wire import payload_of
-from zensim.schemas import Codec, Keys, MotorCommand, RobotInfo, SimStatus
+from zensim.schemas import Codec, Keys, MotorCommand, SimStatus
 
 FLOODER = r"""
 import json, os, random, sys, time, zenoh
@@ -134,22 +133,9 @@ def main() -> int:
     try:
         router = procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "",
                               "--cmd-rate-limit-hz", args.cmd_rate_limit_hz)
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"client"')
-        conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        conf.insert_json5("connect/timeout_ms", "-1")
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        with zenoh.open(conf) as session:
+        with zenoh.open(client_config(endpoint)) as session:
             sim = procs.zensim("sim", "--mode", "floating", "--rtf", "1", "--state-rate-hz", args.state_rate_hz)
-            codec = Codec(RobotInfo)
-            infos: list[RobotInfo] = []
-            wait_until(lambda: infos.extend(codec.decode(*payload_of(r.ok)) for r in session.get(keys.robot_info, timeout=1.0) if r.ok) or infos, 30, "info/robot")
-            info = infos[0]
-            i = info.joint_names.index(JOINT)
-            default = np.array(info.default_q[info.mode])
-            low, high = float(default[i]) - STEP_RAD, float(default[i]) + STEP_RAD
-            threshold = 0.4 * min(info.effort_limit[i], info.gains[info.mode].kp[i] * 2 * STEP_RAD)
-            probe = TorqueProbe(i, threshold)
+            i, default, low, high, probe = elbow_trials(session, keys)
             watch = Watch()
             subs = [session.declare_subscriber(keys.joints, lambda s: (probe.on_state(s), watch.on_state(s))),
                     session.declare_subscriber(keys.sim_status, watch.on_status)]

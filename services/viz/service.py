@@ -33,7 +33,7 @@ import zenoh
 
 from zensim.common.logs import RateLimitedLog
 from zensim.common.session import StartupError
-from zensim.common.wire import TypedPublisher, decode_input, error_text, payload_of
+from zensim.common.wire import TypedPublisher, decode_input, error_text
 from zensim.schemas import (
     Codec,
     CtlReply,
