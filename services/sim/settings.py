@@ -2,19 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
-from zensim.common.settings import ZenohSettings
+from zensim.common.settings import CommonSettings
 from zensim.schemas.messages import Mode
 
 
-class SimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class SimSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim sim`: the MuJoCo physics service."""
 
-    robot_id: str = "g1"
-    """Robot id: the `{robot}` chunk of every key (zensim/{robot}/...)."""
+    env_prefix: ClassVar[str] = "SIM"
     robot: str = "unitree_g1"
     """Bundled robot to simulate (unitree_g1, alias g1); ignored when --urdf is given."""
     urdf: str | None = None
@@ -45,7 +44,3 @@ class SimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     """Largest accepted kd in a motor command, N m s/rad."""
     paused: bool = False
     """Start paused (step with ctl/step, go with ctl/resume)."""
-    log_level: str = "INFO"
-    """Python log level."""
-    zenoh: ZenohSettings = ZenohSettings()
-    """Zenoh session settings."""

@@ -332,7 +332,7 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
     except OSError as exc:
         service.close()
         raise StartupError(f"cannot serve the page on {settings.host}:{settings.port} "
-                           f"(--host / ZENSIM_HOST, --port / ZENSIM_PORT): {exc.strerror or exc}") from None
+                           f"(--host / ZENSIM_VIZ_HOST, --port / ZENSIM_VIZ_PORT): {exc.strerror or exc}") from None
     server.add_sockets(sockets)
     port = sockets[0].getsockname()[1]
     logger.info("viz up: http://%s:%d/", settings.host, port)
