@@ -7,18 +7,22 @@ It declares the liveliness token `zensim/{robot}/alive/router`.
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Sequence
 
 import msgspec
 
 from zensim.common.logs import setup_logging
-from zensim.common.session import open_session
+from zensim.common.secure import SecureConfigError
+from zensim.common.session import open_session, zenoh_config
 from zensim.common.settings import ZenohSettings, describe, settings_or_exit
 from zensim.common.shutdown import stop_on_signals
 from zensim.schemas import Keys
 
 logger = logging.getLogger("zensim.router")
+
+ACL_LOG = "warn,zenoh::net::routing::interceptor::access_control=trace"
 
 
 class RouterSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -28,19 +32,27 @@ class RouterSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """Robot id whose `alive/router` token this router declares."""
     log_level: str = "INFO"
     """Python log level."""
-    zenoh: ZenohSettings = ZenohSettings(mode="router", listen=("tcp/127.0.0.1:7447",))
-    """Zenoh settings; mode is forced to router. Listen on tcp/0.0.0.0:7447 to accept other hosts."""
+    zenoh: ZenohSettings = ZenohSettings(mode="router")
+    """Zenoh settings; mode is forced to router. It listens on tcp/127.0.0.1:7447 (with --secure-dir: the
+    folder's tls/ endpoint) unless told; listen on tcp/0.0.0.0:7447 to accept other hosts."""
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(RouterSettings, argv, "zensim router")
-    setup_logging(settings.log_level)
+    # Secured: zenoh's access control logs each decision (allowed and denied, once per key and
+    # link) at trace level; show them unless RUST_LOG says otherwise (docs/security.md).
+    setup_logging(settings.log_level, ACL_LOG if settings.zenoh.secure_dir else "warn")
     zenoh_settings = msgspec.structs.replace(settings.zenoh, mode="router")
     stop = stop_on_signals()
     logger.info("starting: %s", describe(settings))
-    with open_session(zenoh_settings) as session:
+    try:
+        listening = json.loads(zenoh_config(zenoh_settings, role="router").get_json("listen/endpoints"))
+    except SecureConfigError as exc:
+        logger.error("%s", exc)
+        return 2
+    with open_session(zenoh_settings, role="router") as session:
         token = session.liveliness().declare_token(Keys(settings.robot_id).alive("router"))
-        logger.info("router up, listening on %s", ", ".join(zenoh_settings.listen) or "zenoh defaults")
+        logger.info("router up, listening on %s", ", ".join(listening))
         stop.wait()
         token.undeclare()
     logger.info("router stopped")

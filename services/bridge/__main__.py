@@ -22,7 +22,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     setup_logging(settings.log_level)
     stop = stop_on_signals()
     logger.info("starting: %s", describe(settings))
-    with open_session(settings.zenoh) as session:
+    with open_session(settings.zenoh, role="bridge") as session:
         code = run(session, settings, stop)
     logger.info("bridge stopped")
     return code

@@ -1,43 +1,115 @@
-"""Open Zenoh sessions from `ZenohSettings`."""
+"""Open Zenoh sessions from `ZenohSettings`.
+
+Secure defaults (docs/security.md): nothing listens beyond loopback and no
+multicast scouting runs unless the settings ask for it. Services started by
+hand on one machine with no endpoints still meet: a peer first tries to
+listen on the local meeting point `tcp/127.0.0.1:7447` (where `zensim router`
+listens by default); if that port is taken (a router, or another service
+came first) it listens on a free loopback port and connects there instead.
+Zenoh's gossip then links the peers to each other directly, so they keep
+talking when the meeting-point holder exits.
+
+With `secure_dir` the session loads the role's config made by `zensim secure
+init` (TLS, password, client certificate) and joins the router as a client.
+"""
 
 from __future__ import annotations
 
 import json
+import logging
 import threading
 
 import zenoh
 
+from .secure import SecureConfigError, role_config
 from .settings import ZenohSettings
 from .shutdown import connecting
 
+logger = logging.getLogger(__name__)
 
-def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
-    """A zenoh.Config: the config file if given, overridden by the explicit settings."""
-    conf = zenoh.Config.from_file(settings.config_file) if settings.config_file else zenoh.Config()
-    conf.insert_json5("mode", json.dumps(settings.mode))
-    if settings.connect:
-        conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
-    if settings.listen:
-        conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+LOCAL_MEETING_ENDPOINT = "tcp/127.0.0.1:7447"
+"""Where peers with no endpoints meet on one machine (the default `zensim router` endpoint)."""
+LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
+
+
+def zenoh_config(settings: ZenohSettings, role: str = "viewer", meet_here: bool = False) -> zenoh.Config:
+    """A zenoh.Config: the config file (or the secured role's) if given, overridden by the explicit settings.
+
+    Args:
+        settings: the service's zenoh settings.
+        role: whose credentials to load from `settings.secure_dir` (router, sim, bridge, viz, operator, viewer).
+        meet_here: a peer with no endpoints listens on the local meeting point itself
+            instead of connecting to it (see the module docstring).
+
+    Raises:
+        SecureConfigError: the secure folder lacks the role's config, or an endpoint is not `tls/`.
+    """
+    mode = settings.mode
+    if settings.secure_dir:
+        if settings.config_file:
+            raise SecureConfigError("give either --secure-dir or --zenoh-config-file, not both")
+        conf = role_config(settings.secure_dir, role)
+        # Access control is enforced by the router: every other secured session is its client,
+        # never a peer that others could reach around it.
+        mode = "router" if role == "router" else "client"
+        plain = [e for e in (*settings.connect, *settings.listen) if not e.startswith("tls/")]
+        if plain:
+            raise SecureConfigError(f"secured links use tls/ endpoints, not {', '.join(plain)}")
+    else:
+        conf = zenoh.Config.from_file(settings.config_file) if settings.config_file else zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    connect, listen = list(settings.connect), list(settings.listen)
+    if not settings.config_file and not settings.secure_dir:
+        if mode == "peer" and not connect and not listen:
+            listen, connect = ([LOCAL_MEETING_ENDPOINT], []) if meet_here else ([LOOPBACK_ANY_PORT], [LOCAL_MEETING_ENDPOINT])
+        elif mode == "peer" and not listen:
+            listen = [LOOPBACK_ANY_PORT]  # zenoh's own default is every interface
+        elif mode == "client" and not connect:
+            connect = [LOCAL_MEETING_ENDPOINT]
+        elif mode == "router" and not listen:
+            listen = [LOCAL_MEETING_ENDPOINT]
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
-    if settings.mode == "client":
+    if mode == "client":
         # A client whose router is not up yet would fail at once; in a compose
         # stack the router may start after us, so wait for it instead.
         conf.insert_json5("connect/timeout_ms", "-1")
-    if settings.mode == "router":
+    if mode == "router":
         # Without this a router waits 500 ms of scouting before it opens.
         conf.insert_json5("scouting/delay", "0")
     return conf
 
 
-def open_session(settings: ZenohSettings) -> zenoh.Session:
+def _uses_meeting_point(settings: ZenohSettings) -> bool:
+    return (settings.mode == "peer" and not settings.connect and not settings.listen
+            and not settings.config_file and not settings.secure_dir)
+
+
+def open_session(settings: ZenohSettings, role: str = "viewer") -> zenoh.Session:
     """Open a session; use it as a context manager so it is always closed.
 
     A client waits for its router with no timeout. The open runs on a helper
     thread so the main thread keeps running Python code, where signal
     handlers run: a SIGINT/SIGTERM during the wait exits at once.
+
+    Args:
+        settings: the zenoh settings.
+        role: the credentials to use when `settings.secure_dir` is set.
     """
-    config = zenoh_config(settings)
+    if _uses_meeting_point(settings):
+        try:
+            session = _open(zenoh_config(settings, role, meet_here=True))
+            logger.info("zenoh: listening on the local meeting point %s", LOCAL_MEETING_ENDPOINT)
+            return session
+        except zenoh.ZError:
+            logger.info("zenoh: %s is taken (a router or another service): joining it", LOCAL_MEETING_ENDPOINT)
+    return _open(zenoh_config(settings, role))
+
+
+def _open(config: zenoh.Config) -> zenoh.Session:
     outcome: dict[str, object] = {}
 
     def open_in_thread() -> None:

@@ -14,7 +14,7 @@ import logging
 import os
 import sys
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal, TypeVar
+from typing import Any, ClassVar, Literal, TypeVar
 
 import msgspec
 
@@ -32,7 +32,14 @@ class SettingsError(ValueError):
 
 
 class ZenohSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """How a service joins the Zenoh network (the flags of zenoh's own examples)."""
+    """How a service joins the Zenoh network (the flags of zenoh's own examples).
+
+    Secure by default: a peer with no endpoints listens on loopback only and
+    no multicast scouting runs (docs/security.md).
+    """
+
+    # Fields whose flag and variable carry no `zenoh` prefix: `--secure-dir`, `ZENSIM_SECURE_DIR`.
+    unprefixed: ClassVar[frozenset[str]] = frozenset({"secure_dir"})
 
     mode: Literal["peer", "client", "router"] = "peer"
     """Zenoh session mode."""
@@ -42,8 +49,10 @@ class ZenohSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """Endpoints to listen on, comma-separated (e.g. tcp/0.0.0.0:7447)."""
     config_file: str | None = None
     """A zenoh JSON5 config file; the settings above override its fields."""
-    multicast_scouting: bool = True
-    """Find peers by UDP multicast; turn off when endpoints are explicit."""
+    multicast_scouting: bool = False
+    """Find peers by UDP multicast on every interface (answers the whole LAN); off unless asked."""
+    secure_dir: str | None = None
+    """A folder made by `zensim secure init`: TLS links, passwords and access roles (docs/security.md)."""
 
 
 class CommonSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -64,8 +73,9 @@ def _flat_fields(cls: type[msgspec.Struct], prefix: str = "") -> list[tuple[str,
     for field in msgspec.structs.fields(cls):
         path = (field.name,)
         if isinstance(field.type, type) and issubclass(field.type, msgspec.Struct):
+            keep = getattr(field.type, "unprefixed", frozenset())
             for name, sub_path, typ, doc in _flat_fields(field.type, f"{prefix}{field.name}_"):
-                flat.append((name, path + sub_path, typ, doc))
+                flat.append((sub_path[-1] if sub_path[-1] in keep else name, path + sub_path, typ, doc))
         else:
             flat.append((f"{prefix}{field.name}", path, field.type, docs.get(field.name, "")))
     return flat
@@ -165,6 +175,24 @@ def settings_table(cls: type[msgspec.Struct]) -> str:
     return "\n".join(rows) + "\n"
 
 
+def check_secure(settings: ZenohSettings) -> None:
+    """Fail fast on a secured setup that cannot work: a missing folder, plain endpoints, a config file too.
+
+    Raises:
+        SettingsError: names the setting.
+    """
+    if not settings.secure_dir:
+        return
+    if not os.path.isdir(settings.secure_dir):
+        raise SettingsError(f"--secure-dir / ZENSIM_SECURE_DIR {settings.secure_dir!r} is not a folder "
+                            "(make one with `zensim secure init DIR`)")
+    if settings.config_file:
+        raise SettingsError("give either --secure-dir or --zenoh-config-file, not both")
+    plain = [e for e in (*settings.connect, *settings.listen) if not e.startswith("tls/")]
+    if plain:
+        raise SettingsError(f"with --secure-dir every endpoint is tls/, not {', '.join(plain)}")
+
+
 def settings_or_exit(cls: type[S], argv: Sequence[str] | None, prog: str) -> S:
     """`load_settings` for a command's main: a bad setting prints one line and exits with code 2."""
     try:
@@ -172,6 +200,9 @@ def settings_or_exit(cls: type[S], argv: Sequence[str] | None, prog: str) -> S:
         robot_id = getattr(settings, "robot_id", None)
         if robot_id is not None:
             check_robot_id(robot_id)
+        zenoh_settings = getattr(settings, "zenoh", None)
+        if isinstance(zenoh_settings, ZenohSettings):
+            check_secure(zenoh_settings)
     except (SettingsError, ValueError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -383,7 +383,7 @@ def run(settings: SimSettings) -> int:
         timestep_s=settings.timestep_s,
     )
     logger.info("robot %s: %d joints, mode %s, step %.4f s", sim.robot.name, sim.robot.nu, sim.mode, sim.timestep_s)
-    with open_session(settings.zenoh) as session:
+    with open_session(settings.zenoh, role="sim") as session:
         service = SimService(session, settings, sim, stop)
         logger.info("sim up on %s", service.keys.root)
         try:

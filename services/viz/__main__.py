@@ -26,7 +26,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logger.info("starting: %s", describe(settings))
     from .service import run  # imports tornado and meshcat: only after the settings parsed
 
-    with open_session(settings.zenoh) as session:
+    with open_session(settings.zenoh, role="viz") as session:
         code = run(session, settings, stop)
     logger.info("session closed")
     return code
