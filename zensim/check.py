@@ -44,7 +44,7 @@ def is_alive(session, key: str, timeout_s: float) -> bool:
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(CheckSettings, argv, "zensim check")
     key = Keys(settings.robot_id).alive(settings.service)
-    with open_session(settings.zenoh) as session:
+    with open_session(settings.zenoh, claim_meeting_point=False) as session:
         alive = is_alive(session, key, settings.timeout_s)
     print(f"{key}: {'alive' if alive else 'not seen'}")
     return 0 if alive else 1

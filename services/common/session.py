@@ -88,7 +88,7 @@ def _uses_meeting_point(settings: ZenohSettings) -> bool:
             and not settings.config_file and not settings.secure_dir)
 
 
-def open_session(settings: ZenohSettings, role: str = "viewer") -> zenoh.Session:
+def open_session(settings: ZenohSettings, role: str = "viewer", claim_meeting_point: bool = True) -> zenoh.Session:
     """Open a session; use it as a context manager so it is always closed.
 
     A client waits for its router with no timeout. The open runs on a helper
@@ -98,8 +98,10 @@ def open_session(settings: ZenohSettings, role: str = "viewer") -> zenoh.Session
     Args:
         settings: the zenoh settings.
         role: the credentials to use when `settings.secure_dir` is set.
+        claim_meeting_point: a peer with no endpoints may become the local meeting point; a short-lived
+            tool (`zensim check`) must not, or a router started meanwhile could not bind it.
     """
-    if _uses_meeting_point(settings):
+    if claim_meeting_point and _uses_meeting_point(settings):
         try:
             session = _open(zenoh_config(settings, role, meet_here=True))
             logger.info("zenoh: listening on the local meeting point %s", LOCAL_MEETING_ENDPOINT)
