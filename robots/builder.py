@@ -183,14 +183,33 @@ def parse_urdf(text: str) -> UrdfInfo:
                     mesh_filenames=meshes)
 
 
+MESH_SUFFIXES: Final = frozenset({".stl", ".obj", ".dae", ".ply", ".msh", ".glb", ".gltf"})
+"""File types a URDF mesh may have: the sim serves these bytes to any client, so nothing else."""
+
+
+def mesh_roots(filename: str, urdf_dir: Path) -> list[Path]:
+    """The folders a mesh may come from: the URDF's own folder tree, and for `package://pkg/...` the
+    `pkg` folder beside it (a ROS-style checkout)."""
+    roots = [urdf_dir.resolve()]
+    if filename.startswith("package://"):
+        package = filename[len("package://"):].split("/", 1)[0]
+        if package not in ("", ".", ".."):
+            roots.append((urdf_dir.parent / package).resolve())
+    return roots
+
+
 def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
     """Find a URDF mesh file relative to the URDF's own folder (never the working directory).
 
     Handles plain relative paths, `package://<pkg>/...` (the URDF's folder is taken as the package
-    root, as in a g1_description checkout) and `file://`.
+    root, as in a g1_description checkout) and `file://`. The sim serves what this returns to any
+    client, so the file must be a mesh type (MESH_SUFFIXES) inside the description's own folder tree
+    (`mesh_roots`), symlinks followed: `../../etc/passwd`, `file:///etc/hostname` or a link out of the
+    folder fail here, at load.
 
     Raises:
         FileNotFoundError: No candidate exists; the message lists where it looked.
+        RobotModelError: The file is outside the description's folders or not a mesh type.
     """
     candidates: list[Path] = []
     if filename.startswith("package://"):
@@ -204,8 +223,19 @@ def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
     candidates += [urdf_dir / "meshes" / Path(filename).name, urdf_dir / Path(filename).name]
     for candidate in candidates:
         if candidate.is_file():
-            return candidate.resolve()
+            return _bounded_mesh(filename, candidate.resolve(), urdf_dir)
     raise FileNotFoundError(f"mesh {filename!r} not found; looked at {[str(c) for c in candidates]}")
+
+
+def _bounded_mesh(filename: str, path: Path, urdf_dir: Path) -> Path:
+    roots = mesh_roots(filename, urdf_dir)
+    if not any(path.is_relative_to(root) for root in roots):
+        raise RobotModelError(f"mesh {filename!r} resolves to {path}, outside the description's folders "
+                              f"{[str(r) for r in roots]}; only files inside them are served")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise RobotModelError(f"mesh {filename!r} ({path}) is not a mesh file type "
+                              f"({', '.join(sorted(MESH_SUFFIXES))})")
+    return path
 
 
 # ------------------------------------------------------------------------------------- resolution
