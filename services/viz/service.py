@@ -19,6 +19,7 @@ descriptions; ctl gets run in a small executor so a slow sim never blocks the pa
 from __future__ import annotations
 
 import logging
+import socket
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -53,6 +54,7 @@ from zensim.schemas import (
 
 from . import panel, scene
 from .settings import VizSettings
+from .access import WILDCARDS, Guard
 from .web import Client, Hub, make_app
 
 logger = logging.getLogger(__name__)
@@ -318,16 +320,23 @@ class VizService:
 def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) -> int:
     """Serve the page until `stop` is set; returns the exit code."""
     service = VizService(session, settings, stop)
-    server = tornado.httpserver.HTTPServer(make_app(service.hub))
     try:
         sockets = tornado.netutil.bind_sockets(settings.port, address=settings.host)
     except OSError as exc:
         logger.error("cannot serve on %s:%d: %s", settings.host, settings.port, exc)
         service.close()
         return 1
-    server.add_sockets(sockets)
     port = sockets[0].getsockname()[1]
+    guard = Guard(settings.host, settings.viz_published_on, settings.viz_allowed_hosts, settings.viz_token)
+    guard.cookie_name = f"zensim_viz_token_{port}"
+    server = tornado.httpserver.HTTPServer(make_app(service.hub, guard))
+    server.add_sockets(sockets)
     logger.info("viz up: http://%s:%d/", settings.host, port)
+    if guard.token is not None:
+        # Once, like Jupyter: whoever can read this log can open the page.
+        shown = settings.host if settings.host not in WILDCARDS else socket.gethostname()
+        logger.info("the page is reachable beyond loopback: open it with its token: http://%s:%d/?token=%s",
+                    shown, port, guard.token)
     fetcher = threading.Thread(target=service.fetch_loop, name="viz-description", daemon=True)
     fetcher.start()
     tornado.ioloop.PeriodicCallback(service.tick, 1000.0 / settings.rate_hz).start()
