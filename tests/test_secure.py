@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -15,6 +16,7 @@ import pytest
 import zenoh
 
 from support import Latest, Service, free_port, wait_for
+from zensim.router import ACL_AUDIT_LOG
 from zensim.schemas import JointState, SimStatus
 
 
@@ -25,6 +27,10 @@ def secrets_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     return folder
+
+
+def strip_ansi(text: str) -> str:
+    return re.sub(r"\x1b\[[0-9;]*m", "", text)
 
 
 def role_conf(folder: Path, role: str, endpoint: str) -> zenoh.Config:
@@ -48,8 +54,8 @@ def secured(secrets_dir: Path, tmp_path: Path, robot_id: str) -> Iterator[tuple[
     """A secured router and a fixed-mode sim on a free tls/ port: (endpoint, router, sim)."""
     endpoint = f"tls/127.0.0.1:{free_port()}"
     env = dict(os.environ, ZENSIM_SECURE_DIR=str(secrets_dir), ZENSIM_ROBOT_ID=robot_id, PYTHONUNBUFFERED="1")
-    env.pop("RUST_LOG", None)
-    router = Service("router", ["--zenoh-listen", endpoint], env, tmp_path)
+    router_env = dict(env, RUST_LOG=ACL_AUDIT_LOG)  # the audit log docs/security.md describes
+    router = Service("router", ["--zenoh-listen", endpoint], router_env, tmp_path)
     sim = None
     try:
         wait_for(lambda: "router up" in router.log() or not router.alive(), 20, "the secured router")
@@ -150,5 +156,43 @@ def test_viewer_reads_but_cannot_drive_operator_can(secured: tuple[str, Service,
         assert reply["ok"], reply
         status.wait(lambda s: s.paused, what="the sim to pause")
     assert sim.alive() and router.alive()
-    # The router says what it refused.
-    assert wait_for(lambda: "unauthorized" in router.log(), 5, "the router's log of denied messages")
+    # The router's audit log names who was refused what.
+    for what in (f"is unauthorized to Put (ingress) on {root}/cmd/motors",
+                 f"is unauthorized to Query (ingress) on {root}/ctl/pause"):
+        wait_for(lambda: re.search(r"Username\(viewer\)[^\n]*" + re.escape(what), strip_ansi(router.log())),
+                 5, f"the router's log line: viewer {what}")
+
+
+def test_zensim_up_secured_runs_everything_and_operator_drives_through_the_bridge(
+        secrets_dir: Path, tmp_path: Path, robot_id: str) -> None:
+    """Each service's own role is enough for its job: the bridge moves a joint the operator asks for."""
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    viz_port = free_port()
+    env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_PORT=str(viz_port), ZENSIM_MODE="fixed",
+               PYTHONUNBUFFERED="1")
+    up = Service("up", ["--secure-dir", str(secrets_dir), "--router-endpoint", endpoint], env, tmp_path)
+    root = f"zensim/{robot_id}"
+    try:
+        conf = role_conf(secrets_dir, "operator", endpoint)
+        conf.insert_json5("connect/timeout_ms", "-1")
+        with zenoh.open(conf) as operator:
+            def alive() -> set[str]:
+                replies = operator.liveliness().get(f"{root}/alive/*", timeout=1.0)
+                return {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
+
+            wait_for(lambda: alive() >= {"router", "sim", "bridge", "viz"} or not up.alive(), 90, "all four", 0.2)
+            assert up.alive(), up.log()
+            joints = Latest(operator, f"{root}/state/joints", JointState)
+            joints.wait(timeout_s=30)
+            info = json.loads(next(iter(operator.get(f"{root}/info/robot?format=json", timeout=10))).ok.payload.to_bytes())
+            knee, target = info["joint_names"].index("left_knee_joint"), 0.3
+            assert abs(joints.value.q[knee] - target) > 0.3
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and abs(joints.value.q[knee] - target) > 0.05:
+                operator.put(f"{root}/cmd/joint/left_knee_joint", str(target))  # to the bridge, then cmd/motors
+                time.sleep(0.2)
+            assert joints.value.q[knee] == pytest.approx(target, abs=0.05), up.log()
+            # The viz fetched the sim's description with its own role.
+            wait_for(lambda: "description of" in up.log(), 30, "the viz's description fetch")
+    finally:
+        up.stop(15)

@@ -21,8 +21,9 @@ from zensim.common.shutdown import stop_on_signals
 from zensim.schemas import Keys
 
 logger = logging.getLogger("zensim.router")
-
-ACL_LOG = "warn,zenoh::net::routing::interceptor::access_control=trace"
+ACL_AUDIT_LOG = "warn,zenoh::net::routing::interceptor::access_control=trace"
+"""RUST_LOG that makes the router log every access decision, `is unauthorized` for each denied message
+(docs/security.md): zenoh logs them only at trace level, one line per message, so it is opt-in."""
 
 
 class RouterSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -39,9 +40,7 @@ class RouterSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
 
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(RouterSettings, argv, "zensim router")
-    # Secured: zenoh's access control logs each decision (allowed and denied, once per key and
-    # link) at trace level; show them unless RUST_LOG says otherwise (docs/security.md).
-    setup_logging(settings.log_level, ACL_LOG if settings.zenoh.secure_dir else "warn")
+    setup_logging(settings.log_level)
     zenoh_settings = msgspec.structs.replace(settings.zenoh, mode="router")
     stop = stop_on_signals()
     logger.info("starting: %s", describe(settings))

@@ -10,10 +10,10 @@ import zenoh
 FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 
-def setup_logging(level: str, zenoh_default: str = "warn") -> None:
-    """Configure stdlib logging at `level`; zenoh's Rust logs follow RUST_LOG (default `zenoh_default`)."""
+def setup_logging(level: str) -> None:
+    """Configure stdlib logging at `level`; zenoh's Rust logs follow RUST_LOG (default warn)."""
     logging.basicConfig(level=level.upper(), format=FORMAT)
-    zenoh.init_log_from_env_or(zenoh_default)
+    zenoh.init_log_from_env_or("warn")
 
 
 class RateLimitedLog:
