@@ -14,6 +14,7 @@ import pytest
 
 from browser import Browser, chromium_binary
 from support import Service, free_port, wait_for
+from zensim.viz.access import Guard
 
 
 def request(port: int, path: str = "/", host: str | None = None, websocket: bool = False,
@@ -42,6 +43,18 @@ def start_viz(start_service: Callable[..., Service], *args: str) -> tuple[Servic
     wait_for(lambda: "viz up" in viz.log() or not viz.alive(), 60, "the viz to serve")
     assert viz.alive(), viz.log()
     return viz, port
+
+
+@pytest.mark.parametrize("bind, published_on, needs_token", [
+    ("127.0.0.1", None, False), ("::1", None, False), ("0.0.0.0", None, True), ("192.168.1.20", None, True),
+    ("0.0.0.0", "127.0.0.1", False),  # compose's default: the container binds all, Docker publishes on loopback
+    ("0.0.0.0", "0.0.0.0", True), ("127.0.0.1", "0.0.0.0", True),
+])
+def test_a_token_is_needed_exactly_when_reachable_beyond_loopback(bind: str, published_on: str | None,
+                                                                 needs_token: bool) -> None:
+    guard = Guard(bind, published_on, (), None)
+    assert (guard.token is not None) == needs_token
+    assert guard.token_ok("anything") != needs_token and guard.token_ok(guard.token or "x")
 
 
 def test_loopback_viz_refuses_foreign_host_names(start_service: Callable[..., Service]) -> None:

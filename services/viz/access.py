@@ -65,8 +65,10 @@ class Guard:
             if address not in WILDCARDS:
                 self.allowed.add(host_name(address))
         self.any_host = "*" in self.allowed
-        exposed = [a for a in (bind, published_on) if a is not None and not is_loopback(a)]
-        self.token: str | None = (token or secrets.token_urlsafe(24)) if exposed else None
+        # Inside a container the page binds every interface but Docker may publish it on loopback only:
+        # then the published address is what others can reach.
+        reachable_on = published_on or bind
+        self.token: str | None = None if is_loopback(reachable_on) else (token or secrets.token_urlsafe(24))
         self.cookie_name = "zensim_viz_token"
         """Set per port once bound: cookies are shared by every port of a host."""
         self.refused = 0
