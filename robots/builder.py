@@ -25,6 +25,7 @@ import numpy as np
 
 from zensim.robots import RobotFiles
 from zensim.robots.control import DEFAULT_ARMATURE_KG_M2, ControlConfig, ModeConfig, first_match, load_control
+from zensim.robots.mesh_files import mesh_refusal
 
 logger = logging.getLogger(__name__)
 
@@ -183,28 +184,13 @@ def parse_urdf(text: str) -> UrdfInfo:
                     mesh_filenames=meshes)
 
 
-MESH_SUFFIXES: Final = frozenset({".stl", ".obj", ".dae", ".ply", ".msh", ".glb", ".gltf"})
-"""File types a URDF mesh may have: the sim serves these bytes to any client, so nothing else."""
-
-
-def mesh_roots(filename: str, urdf_dir: Path) -> list[Path]:
-    """The folders a mesh may come from: the URDF's own folder tree, and for `package://pkg/...` the
-    `pkg` folder beside it (a ROS-style checkout)."""
-    roots = [urdf_dir.resolve()]
-    if filename.startswith("package://"):
-        package = filename[len("package://"):].split("/", 1)[0]
-        if package not in ("", ".", ".."):
-            roots.append((urdf_dir.parent / package).resolve())
-    return roots
-
-
 def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
     """Find a URDF mesh file relative to the URDF's own folder (never the working directory).
 
     Handles plain relative paths, `package://<pkg>/...` (the URDF's folder is taken as the package
     root, as in a g1_description checkout) and `file://`. The sim serves what this returns to any
-    client, so the file must be a mesh type (MESH_SUFFIXES) inside the description's own folder tree
-    (`mesh_roots`), symlinks followed: `../../etc/passwd`, `file:///etc/hostname` or a link out of the
+    client, so the file must be a mesh type (`mesh_files.MESH_SUFFIXES`) inside the description's own folder tree
+    (`mesh_files.mesh_roots`), symlinks followed: `../../etc/passwd`, `file:///etc/hostname` or a link out of the
     folder fail here, at load.
 
     Raises:
@@ -228,13 +214,9 @@ def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
 
 
 def _bounded_mesh(filename: str, path: Path, urdf_dir: Path) -> Path:
-    roots = mesh_roots(filename, urdf_dir)
-    if not any(path.is_relative_to(root) for root in roots):
-        raise RobotModelError(f"mesh {filename!r} resolves to {path}, outside the description's folders "
-                              f"{[str(r) for r in roots]}; only files inside them are served")
-    if path.suffix.lower() not in MESH_SUFFIXES:
-        raise RobotModelError(f"mesh {filename!r} ({path}) is not a mesh file type "
-                              f"({', '.join(sorted(MESH_SUFFIXES))})")
+    refusal = mesh_refusal(filename, path, urdf_dir)
+    if refusal is not None:
+        raise RobotModelError(refusal)
     return path
 
 

@@ -75,3 +75,13 @@ def test_the_sim_refuses_to_start_with_such_a_urdf(tmp_path: Path) -> None:
                            "--zenoh-connect", "tcp/127.0.0.1:1"], capture_output=True, text=True, timeout=120)
     assert done.returncode != 0
     assert "file:///etc/hostname" in done.stderr and "outside" in done.stderr, done.stderr[-2000:]
+
+
+def test_the_viz_does_not_send_such_a_mesh_to_browsers(tmp_path: Path, start_service) -> None:  # noqa: ANN001
+    from support import free_port, wait_for
+
+    urdf = description(tmp_path, "file:///etc/hostname")
+    viz = start_service("viz", "--urdf", str(urdf), "--port", str(free_port()))
+    wait_for(lambda: "description of" in viz.log() or not viz.alive(), 60, "the viz to draw the local URDF")
+    assert viz.alive(), viz.log()
+    assert "not sent to browsers: mesh 'file:///etc/hostname'" in viz.log()

@@ -33,6 +33,7 @@ import tornado.netutil
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
+from zensim.robots.mesh_files import mesh_refusal
 from zensim.common.wire import TypedPublisher, payload_of
 from zensim.schemas import (
     Codec,
@@ -191,10 +192,12 @@ class VizService:
             source = str(urdf_path)
             for filename in scene.parse_urdf(urdf_text).mesh_filenames():
                 path = Path(scene.local_mesh_path(str(urdf_path.parent), filename))
-                if path.is_file():
-                    meshes[filename] = path.read_bytes()
-                else:
+                if not path.is_file():
                     logger.warning("mesh %s not found at %s", filename, path)
+                elif (refusal := mesh_refusal(filename, path, urdf_path.parent)) is not None:
+                    logger.warning("not sent to browsers: %s", refusal)  # as the sim refuses it
+                else:
+                    meshes[filename] = path.read_bytes()
         else:
             assert info is not None
             urdf_text = self._get_bytes(self.keys.urdf).decode("utf-8")
