@@ -24,6 +24,8 @@ from zensim.schemas.keys import check_robot_id
 logger = logging.getLogger(__name__)
 
 ENV_PREFIX = "ZENSIM_"
+SECRET_SUFFIXES = ("token", "password")
+"""Settings whose values `describe` never logs."""
 S = TypeVar("S", bound=msgspec.Struct)
 
 
@@ -157,6 +159,8 @@ def _flatten_values(tree: dict, prefix: str = "") -> list[tuple[str, Any]]:
     for key, value in tree.items():
         if isinstance(value, msgspec.Struct):
             out.extend(_flatten_values(msgspec.structs.asdict(value), f"{prefix}{key}_"))
+        elif key.endswith(SECRET_SUFFIXES) and value:
+            out.append((prefix + key, "<hidden>"))  # logs are read by more people than the page's users
         else:
             out.append((prefix + key, value))
     return out
