@@ -7,6 +7,7 @@
     zensim up       all of the above as local processes
     zensim check    exit 0 when a service is alive (for healthchecks)
     zensim robot    build or inspect a robot model
+    zensim secure   make the credentials of a secured network (secure init DIR)
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
 flags; each service's README has its table (services/*/README.md, the
@@ -29,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("zensim.up", "run router, sim, bridge and viz as local processes"),
     "check": ("zensim.check", "exit 0 when a service's liveliness token is seen"),
     "robot": ("zensim.robots.cli", "build or inspect a robot model"),
+    "secure": ("zensim.secure", "make TLS certificates, passwords and role configs (secure init DIR)"),
 }
 
 
