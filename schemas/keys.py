@@ -16,7 +16,7 @@ from .messages import KeyInfo
 ROOT: Final = "zensim"
 DEFAULT_ROBOT_ID: Final = "g1"
 ROBOT_ID_PATTERN: Final = re.compile(r"[a-z0-9_-]+")
-SERVICES: Final = ("sim", "bridge", "viz", "router")
+SERVICES: Final = ("sim", "bridge", "viz", "router", "unitree")
 
 CTL_VERBS: Final = ("reset", "pause", "resume", "step", "mode")
 
@@ -51,6 +51,7 @@ class Keys:
         self.urdf = f"{self.root}/info/urdf"
         self.mesh_any = f"{self.root}/info/mesh/**"
         self.alive_any = f"{self.root}/alive/*"
+        self.unitree_status = f"{self.root}/state/unitree"
 
     def joint_target(self, joint: str) -> str:
         """Key for one joint's bare-number target."""
@@ -126,5 +127,6 @@ KEY_TABLE: Final[tuple[KeyInfo, ...]] = (
     _row("info/urdf", "queryable", "URDF text (application/xml)", "sim", "anyone", "on demand"),
     _row("info/mesh/{path}", "queryable", "mesh bytes (application/octet-stream)", "sim", "anyone", "on demand"),
     _row("alive/{service}", "liveliness", "token", "each service (sim, bridge, viz)", "anyone", "while running"),
+    _row("state/unitree", "publication", "unitree_status", "unitree", "anyone", "unitree_status_rate_hz, default 2 Hz"),
 )
 """Keys relative to `zensim/{robot}`."""

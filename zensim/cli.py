@@ -7,6 +7,7 @@
     zensim up       all of the above as local processes
     zensim check    exit 0 when a service is alive (for healthchecks)
     zensim robot    build or inspect a robot model
+    zensim unitree  Unitree's DDS LowCmd/LowState for SDK controllers
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
 flags; see docs/settings.md.
@@ -28,10 +29,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("zensim.up", "run router, sim, bridge and viz as local processes"),
     "check": ("zensim.check", "exit 0 when a service's liveliness token is seen"),
     "robot": ("zensim.robots.cli", "build or inspect a robot model"),
+    "unitree": ("zensim.unitree.__main__", "run the Unitree DDS adapter (unitree_sdk2's rt/lowcmd, rt/lowstate)"),
 }
 
 
-LONG_RUNNING = frozenset({"sim", "bridge", "viz", "router"})
+LONG_RUNNING = frozenset({"sim", "bridge", "viz", "router", "unitree"})
 
 
 def usage() -> str:
