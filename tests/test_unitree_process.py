@@ -1,0 +1,201 @@
+"""`zensim unitree` as users run it: a real sim and adapter process, a Unitree-SDK-style controller on real
+Cyclone DDS (loopback, a DDS domain of its own per test) and a plain zenoh session watching zensim's keys.
+"""
+
+import math
+import signal
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from cyclonedds.core import Policy, Qos
+from cyclonedds.idl import IdlStruct, annotations as annotate, types
+from cyclonedds.pub import DataWriter
+from cyclonedds.topic import Topic
+
+from support import Latest, ctl, wait_for
+from unitree_sdk import (
+    G1_NUM_MOTOR,
+    KD,
+    KP,
+    LEFT_ANKLE_PITCH,
+    LEFT_ANKLE_ROLL,
+    RIGHT_ANKLE_PITCH,
+    RIGHT_ANKLE_ROLL,
+    SdkClient,
+    low_state_crc,
+    new_low_cmd,
+    unused_domain_id,
+)
+from zensim.schemas import JointState, Keys, UnitreeStatus
+
+CONTROL_DT_S = 0.002
+ELBOW = 18  # left_elbow_joint in the G1's motor order
+
+
+@pytest.fixture
+def rig(start_service, robot_id, zsession):
+    """A fixed-base G1 sim with 500 Hz states, the adapter on `lo` in a fresh domain, an SDK client."""
+    domain = unused_domain_id()
+    sim = start_service("sim", "--mode", "fixed", "--rtf", "1", "--state-rate-hz", "500")
+    adapter = start_service("unitree", "--unitree-domain-id", str(domain), "--unitree-interface", "lo",
+                            "--unitree-status-rate-hz", "5")
+    keys = Keys(robot_id)
+    # Hang the fixed base high enough that straight legs clear the floor (unitree_mujoco holds the
+    # G1 up with its elastic band for the same example): the ankles then swing freely.
+    wait_for(lambda: "sim up" in sim.log() or not sim.alive(), 60, "the sim to start")
+    assert ctl(zsession, keys.ctl("reset"), {"base_height_m": 1.2})["ok"]
+    wait_for(lambda: "unitree adapter up" in adapter.log() or not adapter.alive(), 60, "the adapter to start")
+    assert adapter.alive(), adapter.log()
+    client = SdkClient(domain)
+    return sim, adapter, client, keys
+
+
+def hold(client: SdkClient, q: dict[int, float], seconds: float, mode_machine: int = 0, crc: int | None = None,
+         mutate=None) -> int:
+    """Write LowCmd_ every 2 ms for `seconds`: motors in `q` enabled at those targets, the rest disabled."""
+    cmd = new_low_cmd()
+    cmd.mode_machine = mode_machine
+    for i, target in q.items():
+        m = cmd.motor_cmd[i]
+        m.mode, m.q, m.kp, m.kd = 1, target, KP[i], KD[i]
+    if mutate is not None:
+        mutate(cmd)
+    sent = 0
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        client.write(cmd, crc)
+        sent += 1
+        time.sleep(CONTROL_DT_S)
+    return sent
+
+
+def test_sdk_low_level_example_drives_zensim(rig, zsession):
+    """The SDK's G1 low-level example, unchanged in behaviour: check/release mode, ramp to zero, swing ankles."""
+    _sim, adapter, client, keys = rig
+    status = Latest(zsession, keys.unitree_status, UnitreeStatus)
+
+    calls = client.check_and_release_mode()
+    assert calls[0] == (0, '{"form": "0", "name": ""}')  # no high-level mode active
+    assert calls[-1] == (0, "")  # releasing succeeds
+
+    first = client.wait_state()
+    assert low_state_crc(first) == first.crc, "LowState_ crc does not check"
+    quat = first.imu_state.quaternion
+    assert math.isclose(sum(v * v for v in quat), 1.0, rel_tol=1e-3)
+    later = client.wait_state(after_tick=first.tick + 50)
+    assert low_state_crc(later) == later.crc
+    assert later.tick > first.tick  # sim time in ms
+    mode_machine = first.mode_machine
+    q0 = [first.motor_state[i].q for i in range(G1_NUM_MOTOR)]
+    assert max(abs(v) for v in q0) > 0.3, "the fixed G1 starts in its squat, not at zero"
+
+    # Stage 1: ramp every joint from where it is to zero over 3 s (the example's gains).
+    cmd = new_low_cmd()
+    t = 0.0
+    start = time.monotonic()
+    while t < 3.0:
+        ratio = min(max(t / 3.0, 0.0), 1.0)
+        cmd.mode_pr, cmd.mode_machine = 0, mode_machine
+        for i in range(G1_NUM_MOTOR):
+            m = cmd.motor_cmd[i]
+            m.mode, m.tau, m.q, m.dq, m.kp, m.kd = 1, 0.0, (1.0 - ratio) * q0[i], 0.0, KP[i], KD[i]
+        client.write(cmd)
+        time.sleep(CONTROL_DT_S)
+        t = time.monotonic() - start
+    time.sleep(0.3)
+    zeroed = client.wait_state()
+    assert low_state_crc(zeroed) == zeroed.crc
+    q_zeroed = np.array([zeroed.motor_state[i].q for i in range(G1_NUM_MOTOR)])
+    assert np.max(np.abs(q_zeroed)) < 0.1, f"joints did not follow the ramp to zero: {q_zeroed.round(3)}"
+
+    # Stage 2: swing the ankles in pitch/roll mode, 1 Hz, 30 deg pitch and 10 deg roll.
+    max_p, max_r = math.radians(30), math.radians(10)
+    seen_pitch = []
+    start = time.monotonic()
+    while (t := time.monotonic() - start) < 2.0:
+        s = math.sin(2 * math.pi * t)
+        cmd.motor_cmd[LEFT_ANKLE_PITCH].q = max_p * s
+        cmd.motor_cmd[LEFT_ANKLE_ROLL].q = max_r * s
+        cmd.motor_cmd[RIGHT_ANKLE_PITCH].q = max_p * s
+        cmd.motor_cmd[RIGHT_ANKLE_ROLL].q = -max_r * s
+        client.write(cmd)
+        state = client.latest_state()
+        if state is not None:
+            seen_pitch.append(state.motor_state[LEFT_ANKLE_PITCH].q)
+        time.sleep(CONTROL_DT_S)
+    assert max(seen_pitch) > 0.6 * max_p and min(seen_pitch) < -0.6 * max_p, \
+        f"the ankle did not swing: {min(seen_pitch):.3f}..{max(seen_pitch):.3f} rad"
+
+    report = status.wait(lambda s: s.lowcmd_forwarded > 1000, what="forwarded commands in the status")
+    assert report.crc_errors == 0 and report.rejected == 0, report
+    assert report.motion_switcher_requests >= 2
+    # 500 Hz sim states give 500 Hz LowState_ (loosely: the machine is shared).
+    assert status.wait(lambda s: s.lowstate_rate_hz > 250, what="LowState_ at the sim's 500 Hz").lowstate_rate_hz < 600
+    assert adapter.alive()
+
+
+@dataclass
+@annotate.final
+@annotate.autoid("sequential")
+class ShortLowCmd(IdlStruct, typename="unitree_hg.msg.dds_.LowCmd_"):
+    """A sample under LowCmd_'s name and topic with the wrong layout (a stale or foreign IDL)."""
+
+    mode_pr: types.uint8 = 0
+    mode_machine: types.uint8 = 0
+
+
+def test_bad_lowcmd_is_ignored_counted_and_survived(rig, zsession):
+    """Wrong CRC, invalid values and malformed samples never move a joint and never stop the adapter."""
+    _sim, adapter, client, keys = rig
+    status = Latest(zsession, keys.unitree_status, UnitreeStatus)
+    joints = Latest(zsession, keys.joints, JointState)
+    client.wait_state()
+
+    hold(client, {ELBOW: 0.8}, 1.0)
+    joints.wait(lambda s: abs(s.q[ELBOW] - 0.8) < 0.05, what="the elbow at 0.8 rad")
+    before = status.wait(lambda s: s.lowcmd_forwarded > 0, what="a status")
+
+    # Good commands at 0.8 interleaved with bad ones at -0.8: the elbow must stay put.
+    bad_cases = [
+        ("crc", {"crc": 0x12345678}),
+        ("nan q", {"mutate": lambda c: setattr(c.motor_cmd[ELBOW], "q", float("nan"))}),
+        ("motor mode 7", {"mutate": lambda c: setattr(c.motor_cmd[ELBOW], "mode", 7)}),
+        ("mode_pr 5", {"mutate": lambda c: setattr(c, "mode_pr", 5)}),
+        ("negative kp", {"mutate": lambda c: setattr(c.motor_cmd[ELBOW], "kp", -40.0)}),
+    ]
+    sent = {}
+    for name, kwargs in bad_cases:
+        sent[name] = 0
+        for _ in range(5):
+            sent[name] += hold(client, {ELBOW: -0.8}, 0.05, **kwargs)
+            hold(client, {ELBOW: 0.8}, 0.05)
+    assert abs(joints.value.q[ELBOW] - 0.8) < 0.1, f"a bad command moved the elbow to {joints.value.q[ELBOW]:.3f}"
+
+    # Samples of a wrong layout under LowCmd_'s name: DDS may or may not deliver them; either
+    # way nothing may move and the adapter must go on.
+    foreign = DataWriter(client.participant, Topic(client.participant, "rt/lowcmd", ShortLowCmd),
+                         qos=Qos(Policy.Reliability.Reliable(0)))
+    for _ in range(20):
+        foreign.write(ShortLowCmd(mode_pr=1, mode_machine=2))
+        time.sleep(0.005)
+    hold(client, {ELBOW: 0.8}, 0.3)
+
+    crc_sent = sent["crc"]
+    invalid_sent = sum(sent.values()) - crc_sent
+    after = status.wait(lambda s: s.crc_errors - before.crc_errors >= 0.9 * crc_sent
+                        and s.rejected - before.rejected >= 0.9 * invalid_sent,
+                        what="the bad commands counted")
+    assert after.last_error, after
+    assert abs(joints.value.q[ELBOW] - 0.8) < 0.1
+    assert adapter.alive(), adapter.log()
+    # Still serving: a good command moves the elbow.
+    hold(client, {ELBOW: 0.2}, 1.0)
+    joints.wait(lambda s: abs(s.q[ELBOW] - 0.2) < 0.05, what="the elbow at 0.2 rad after the bad input")
+    assert "not applied" in adapter.log()  # logged (rate-limited), not silent
+
+    # Stops cleanly on SIGTERM, and its liveliness token goes.
+    adapter.signal(signal.SIGTERM)
+    assert adapter.proc.wait(10) == 0
+    assert not list(zsession.liveliness().get(keys.alive("unitree"), timeout=1.0))
