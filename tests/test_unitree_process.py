@@ -202,3 +202,49 @@ def test_bad_lowcmd_is_ignored_counted_and_survived(rig, zsession):
     adapter.signal(signal.SIGTERM)
     assert adapter.proc.wait(10) == 0
     assert not list(zsession.liveliness().get(keys.alive("unitree"), timeout=1.0))
+
+
+def test_zensim_up_unitree_serves_an_sdk_controller(tmp_path, robot_id):
+    """`zensim up --unitree`: the adapter in place of the bridge, LowState_ at 500 Hz sim states, Ctrl-C stops all."""
+    import os
+    import subprocess
+    import sys
+
+    from support import free_port, plain_client
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    domain = unused_domain_id()
+    env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_UNITREE_DOMAIN_ID=str(domain), ZENSIM_MODE="fixed",
+               PYTHONUNBUFFERED="1")
+    log = (tmp_path / "up.log").open("wb")
+    up = subprocess.Popen([sys.executable, "-m", "zensim", "up", "--unitree", "--viz", "false",
+                           "--router-endpoint", endpoint],
+                          env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        with plain_client(endpoint, wait_for_router=True) as session:
+            def alive() -> set[str]:
+                replies = session.liveliness().get(f"zensim/{robot_id}/alive/*", timeout=1.0)
+                return {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
+
+            running = wait_for(lambda: (a := alive()) >= {"router", "sim", "unitree"} and a, 60, "the services", 0.2)
+            assert "bridge" not in running  # one commander of the motors: the SDK controller
+            client = SdkClient(domain)
+            assert client.call(1001)[0] == 0
+            first = client.wait_state()
+            time.sleep(0.2)
+            hold(client, {ELBOW: 0.7}, 1.0, mode_machine=first.mode_machine)
+            state = client.wait_state(after_tick=first.tick)
+            assert abs(state.motor_state[ELBOW].q - 0.7) < 0.05
+            # 500 Hz states: consecutive LowState_ ticks 2 ms of sim time apart.
+            ticks = []
+            while len(ticks) < 20:
+                sample = client.wait_state(after_tick=ticks[-1] if ticks else -1)
+                ticks.append(sample.tick)
+            assert min(np.diff(ticks)) == 2, ticks
+        up.send_signal(signal.SIGINT)
+        assert up.wait(15) == 0, (tmp_path / "up.log").read_text()
+        assert "unitree exited with 0" in (tmp_path / "up.log").read_text()
+    finally:
+        if up.poll() is None:
+            os.killpg(up.pid, signal.SIGKILL)
+        log.close()
