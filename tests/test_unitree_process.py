@@ -3,14 +3,17 @@ Cyclone DDS (loopback, a DDS domain of its own per test) and a plain zenoh sessi
 """
 
 import math
+import os
 import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
 import pytest
 from cyclonedds._clayer import ddspy_write
 
-from support import Latest, ctl, wait_for
+from support import Latest, ctl, free_port, plain_client, wait_for
 from unitree_sdk import (
     G1_NUM_MOTOR,
     KD,
@@ -194,12 +197,6 @@ def test_bad_lowcmd_is_ignored_counted_and_survived(rig, zsession):
 
 def test_zensim_up_unitree_serves_an_sdk_controller(tmp_path, robot_id):
     """`zensim up --unitree`: the adapter in place of the bridge, LowState_ at 500 Hz sim states, Ctrl-C stops all."""
-    import os
-    import subprocess
-    import sys
-
-    from support import free_port, plain_client
-
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     domain = unused_domain_id()
     env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_UNITREE_DOMAIN_ID=str(domain), ZENSIM_MODE="fixed",
