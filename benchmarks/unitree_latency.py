@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import signal
 import sys
 import threading
 import time
@@ -157,6 +158,8 @@ def run_trials(paths: dict[str, Path_], trials: int) -> dict[str, list[float]]:
 
 
 def main() -> None:
+    # A SIGTERM (e.g. from `timeout`) must still run the `finally` below, or the services outlive us.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=200)
     parser.add_argument("--state-rate-hz", type=float, default=500.0)
