@@ -170,8 +170,10 @@ class UnitreeAdapter:
             try:
                 request = self._dds.take_request()
             except Exception as exc:  # the binding raises assorted errors on an undecodable sample
+                # The sample is taken (gone) either way; the rest wait for the next wake-up, so a
+                # reader that keeps failing cannot spin this thread.
                 self._reject_log.warning("undecodable motion-switcher request: %s", str(exc)[:MAX_ERROR_CHARS])
-                continue
+                return
             if request is None:
                 return
             identity = request.header.identity
