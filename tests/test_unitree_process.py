@@ -83,6 +83,8 @@ def test_sdk_low_level_example_drives_zensim(rig, zsession):
     assert low_state_crc(first) == first.crc, "LowState_ crc does not check"
     quat = first.imu_state.quaternion
     assert math.isclose(sum(v * v for v in quat), 1.0, rel_tol=1e-3)
+    roll, pitch, _yaw = first.imu_state.rpy
+    assert abs(roll) < 0.05 and abs(pitch) < 0.05, "the welded base stands upright"
     later = client.wait_state(after_tick=first.tick + 50)
     assert low_state_crc(later) == later.crc
     assert later.tick > first.tick  # sim time in ms
