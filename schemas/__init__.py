@@ -27,6 +27,7 @@ from .messages import (
     RobotInfo,
     SimStatus,
     StepRequest,
+    UnitreeStatus,
 )
 
 __all__ = [
@@ -36,4 +37,5 @@ __all__ = [
     "SCHEMA_VERSION", "WIRE_TYPES", "BridgeReport", "CtlReply", "Gains", "Imu", "JointState",
     "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
+    "UnitreeStatus",
 ]

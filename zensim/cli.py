@@ -8,6 +8,7 @@
     zensim check    exit 0 when a service is alive (for healthchecks)
     zensim robot    build or inspect a robot model
     zensim secure   make the credentials of a secured network (secure init DIR)
+    zensim unitree  Unitree's DDS LowCmd/LowState for SDK controllers
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
 flags; each service's README has its table (services/*/README.md, the
@@ -31,10 +32,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "check": ("zensim.check", "exit 0 when a service's liveliness token is seen"),
     "robot": ("zensim.robots.cli", "build or inspect a robot model"),
     "secure": ("zensim.secure", "make TLS certificates, passwords and role configs (secure init DIR)"),
+    "unitree": ("zensim.unitree.__main__", "run the Unitree DDS adapter (unitree_sdk2's rt/lowcmd, rt/lowstate)"),
 }
 
 
-LONG_RUNNING = frozenset({"sim", "bridge", "viz", "router"})
+LONG_RUNNING = frozenset({"sim", "bridge", "viz", "router", "unitree"})
 
 
 def usage() -> str:
