@@ -5,7 +5,8 @@ can use it without the simulator's dependencies.
 """
 
 from .codec import JSON, MAX_ERROR_CHARS, MSGPACK, Codec, DecodeError, bounded, decode_scalar, encoding_of, is_json, short_repr
-from .keys import DEFAULT_ROBOT_ID, KEY_TABLE, ROOT, Keys, check_robot_id
+from .keys import DEFAULT_ROBOT_ID, ROOT, Keys, check_robot_id
+from .topics import TOPICS, Topic, protocol_table
 from .messages import (
     SCHEMA_VERSION,
     WIRE_TYPES,
@@ -33,7 +34,7 @@ from .messages import (
 __all__ = [
     "JSON", "MAX_ERROR_CHARS", "MSGPACK", "Codec", "DecodeError", "bounded", "decode_scalar", "encoding_of",
     "is_json", "short_repr",
-    "DEFAULT_ROBOT_ID", "KEY_TABLE", "ROOT", "Keys", "check_robot_id",
+    "DEFAULT_ROBOT_ID", "ROOT", "Keys", "check_robot_id", "TOPICS", "Topic", "protocol_table",
     "SCHEMA_VERSION", "WIRE_TYPES", "BridgeReport", "CtlReply", "Gains", "Imu", "JointState",
     "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",

@@ -1,7 +1,9 @@
-"""Write the JSON Schema of every wire message into schemas/jsonschema/.
+"""Write the JSON Schema of every wire message into schemas/jsonschema/, and the protocol table into docs.
 
-Run `python -m zensim.schemas.generate` after changing messages.py; a test
-fails while the files are stale.
+Run `python -m zensim.schemas.generate` after changing messages.py or
+topics.py; a test fails while the files are stale. The table goes between
+the `<!-- topics:begin -->` and `<!-- topics:end -->` lines of
+docs/protocol.md, when run from a checkout (an installed package has no docs).
 """
 
 from __future__ import annotations
@@ -16,8 +18,11 @@ import msgspec
 
 from . import messages
 from .messages import WIRE_TYPES, Message
+from .topics import protocol_table
 
 SCHEMA_DIR = Path(__file__).parent / "jsonschema"
+PROTOCOL_DOC = Path(__file__).resolve().parent.parent / "docs" / "protocol.md"
+TABLE_BEGIN, TABLE_END = "<!-- topics:begin -->\n", "<!-- topics:end -->\n"
 
 
 def attribute_docs(cls: type) -> dict[str, str]:
@@ -76,11 +81,21 @@ def render() -> dict[str, str]:
     return files
 
 
+def with_protocol_table(doc: str) -> str:
+    """`doc` (docs/protocol.md's text) with the table between its markers rendered anew from the topics."""
+    head, rest = doc.split(TABLE_BEGIN, 1)
+    _, tail = rest.split(TABLE_END, 1)
+    return head + TABLE_BEGIN + protocol_table() + TABLE_END + tail
+
+
 def main() -> int:
     SCHEMA_DIR.mkdir(exist_ok=True)
     for name, text in render().items():
         (SCHEMA_DIR / name).write_text(text)
         print(SCHEMA_DIR / name)
+    if PROTOCOL_DOC.is_file():
+        PROTOCOL_DOC.write_text(with_protocol_table(PROTOCOL_DOC.read_text()))
+        print(PROTOCOL_DOC)
     return 0
 
 

@@ -1,9 +1,8 @@
 """Zenoh key expressions of the wire contract, and the protocol table.
 
 Every key lives under `zensim/{robot}`. Services build keys only through
-`Keys`, never as string literals, so the table below is the one place that
-says what travels where. docs/protocol.md renders the same table and a test
-keeps the two in step.
+`Keys`, never as string literals. What travels on each key, who writes and who
+reads it, is the topic registry in topics.py.
 """
 
 from __future__ import annotations
@@ -12,6 +11,7 @@ import re
 from typing import Final
 
 from .messages import KeyInfo
+from .topics import TOPICS, Topic
 
 ROOT: Final = "zensim"
 DEFAULT_ROBOT_ID: Final = "g1"
@@ -55,6 +55,12 @@ class Keys:
         self.alive_any = f"{self.root}/alive/*"
         self.unitree_status = f"{self.root}/state/unitree"
 
+    def of(self, topic: Topic) -> str:
+        """The full key of a topic without placeholders (`state/joints` -> `zensim/g1/state/joints`)."""
+        if "{" in topic.key:
+            raise ValueError(f"{topic.key!r} has a placeholder: use the key's own builder")
+        return f"{self.root}/{topic.key}"
+
     def joint_target(self, joint: str) -> str:
         """Key for one joint's bare-number target."""
         return f"{self.root}/cmd/joint/{joint}"
@@ -92,43 +98,11 @@ class Keys:
         return f"{self.root}/alive/{service}"
 
     def table(self) -> tuple[KeyInfo, ...]:
-        """The protocol table for this robot (served in RobotInfo.keys)."""
-        return tuple(
-            KeyInfo(key=f"{self.root}/{row.key}", kind=row.kind, message=row.message,
-                    writer=row.writer, reader=row.reader, rate=row.rate)
-            for row in KEY_TABLE
-        )
+        """The protocol table for this robot (served in RobotInfo.keys), from the topic registry."""
+        return tuple(topic.info(self.root) for topic in TOPICS)
 
 
 def mesh_key_path(filename: str) -> str:
     """The part of a URDF mesh filename that goes into an `info/mesh/{path}` key."""
     path = filename.split("://", 1)[-1].lstrip("/")
     return "/".join(chunk for chunk in path.split("/") if chunk)
-
-
-def _row(key: str, kind: str, message: str, writer: str, reader: str, rate: str) -> KeyInfo:
-    return KeyInfo(key=key, kind=kind, message=message, writer=writer, reader=reader, rate=rate)  # type: ignore[arg-type]
-
-
-KEY_TABLE: Final[tuple[KeyInfo, ...]] = (
-    _row("state/joints", "publication", "joint_state", "sim", "anyone", "100 Hz (state_rate_hz)"),
-    _row("state/odom", "publication", "odometry", "sim", "anyone", "100 Hz (state_rate_hz)"),
-    _row("state/imu", "publication", "imu", "sim", "anyone", "100 Hz (state_rate_hz)"),
-    _row("state/sim", "publication", "sim_status", "sim", "anyone", "10 Hz"),
-    _row("state/targets", "publication", "joint_targets", "bridge", "viz (ghost), anyone", "targets_rate_hz, default 30 Hz"),
-    _row("cmd/motors", "publication", "motor_command", "bridge or any client (a policy)", "sim", "any; latest wins"),
-    _row("cmd/joints", "publication", "joint_targets", "sliders, any client", "bridge", "any; latest wins"),
-    _row("cmd/joint/{joint}", "publication", "float", "any client", "bridge", "any; latest wins"),
-    _row("report/bridge", "publication", "bridge_report", "bridge", "anyone", "per rejected or clamped input"),
-    _row("ctl/reset", "queryable", "reset_request -> ctl_reply", "any client", "sim", "on demand"),
-    _row("ctl/pause", "queryable", "pause_request -> ctl_reply", "any client", "sim", "on demand"),
-    _row("ctl/resume", "queryable", "resume_request -> ctl_reply", "any client", "sim", "on demand"),
-    _row("ctl/step", "queryable", "step_request -> ctl_reply", "any client", "sim", "on demand"),
-    _row("ctl/mode", "queryable", "mode_request -> ctl_reply", "any client", "sim", "on demand"),
-    _row("info/robot", "queryable", "robot_info", "sim", "anyone", "on demand"),
-    _row("info/urdf", "queryable", "URDF text (application/xml)", "sim", "anyone", "on demand"),
-    _row("info/mesh/{path}", "queryable", "mesh bytes (application/octet-stream)", "sim", "anyone", "on demand"),
-    _row("alive/{service}", "liveliness", "token", "each service (sim, bridge, viz)", "anyone", "while running"),
-    _row("state/unitree", "publication", "unitree_status", "unitree", "anyone", "status_rate_hz, default 2 Hz"),
-)
-"""Keys relative to `zensim/{robot}`."""

@@ -27,6 +27,7 @@ from zensim.common.logs import RateLimitedLog
 from zensim.common.session import StartupError
 from zensim.common.pacing import Pacer
 from zensim.common.wire import TypedPublisher, decode_input, error_text, read_payload
+from zensim.schemas import topics
 from zensim.schemas import (
     BridgeReport,
     Codec,
@@ -35,7 +36,6 @@ from zensim.schemas import (
     Keys,
     MotorCommand,
     RobotInfo,
-    SimStatus,
     bounded,
     decode_scalar,
 )
@@ -92,16 +92,16 @@ class Bridge:
         self.adopt(model)
         self._rejected_total = 0
         self._clamped_total = 0
-        self._targets_codec = Codec(JointTargets)
-        self._status_codec = Codec(SimStatus)
+        self._targets_codec = Codec(topics.JOINT_TARGETS.message)
+        self._status_codec = Codec(topics.SIM_STATUS.message)
         self._reject_log = RateLimitedLog(logger, 1.0)
         self._clamp_log = RateLimitedLog(logger, 1.0)
         self._status_log = RateLimitedLog(logger, 5.0)
         # The bridge's commands are what keeps the robot standing: they go out at real-time priority,
         # ahead of whatever else a flooding client pushes through the same router.
-        self._motors = TypedPublisher(session, keys.motors, MotorCommand, priority=zenoh.Priority.REAL_TIME)
-        self._targets = TypedPublisher(session, keys.bridge_targets, JointTargets)
-        self._reports = TypedPublisher(session, keys.bridge_report, BridgeReport)
+        self._motors = TypedPublisher.of(session, keys, topics.MOTORS, priority=zenoh.Priority.REAL_TIME)
+        self._targets = TypedPublisher.of(session, keys, topics.BRIDGE_TARGETS)
+        self._reports = TypedPublisher.of(session, keys, topics.BRIDGE_REPORT)
         # Sized from the robot, like the sim's caps; the sim's own statuses are far smaller.
         self._cap_bytes = vector_cap_bytes(model.joint_names)
         self._subscribers = [

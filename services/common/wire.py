@@ -15,7 +15,7 @@ from typing import Generic, TypeVar
 
 import zenoh
 
-from zensim.schemas import Codec, DecodeError, Message, bounded, encoding_of
+from zensim.schemas import Codec, DecodeError, Keys, Message, Topic, bounded, encoding_of
 from zensim.schemas.codec import Format
 
 from .logs import RateLimitedLog
@@ -97,7 +97,17 @@ class Refusals:
 
 
 class TypedPublisher(Generic[M]):
-    """A zenoh publisher declared once that writes one message type in one format."""
+    """A zenoh publisher declared once that writes one message type in one format.
+
+    `TypedPublisher.of(session, keys, topics.JOINTS)` takes the key and the type from the registry.
+    """
+
+    @classmethod
+    def of(cls, session: zenoh.Session, keys: Keys, topic: Topic, fmt: Format = "msgpack",
+           priority: zenoh.Priority | None = None) -> TypedPublisher:
+        """The publisher of a topic of the registry (schemas/topics.py) for one robot."""
+        assert topic.message is not None, f"{topic.key} carries no message struct"
+        return cls(session, keys.of(topic), topic.message, fmt, priority)
 
     def __init__(self, session: zenoh.Session, key: str, message_type: type[M], fmt: Format = "msgpack",
                  priority: zenoh.Priority | None = None) -> None:

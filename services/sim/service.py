@@ -39,16 +39,13 @@ from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, is_wildcard, payload_of, reply
 from zensim.robots import robot_files
 from zensim.robots.builder import Robot, build
+from zensim.schemas import topics
 from zensim.schemas import (
     Codec,
     CtlReply,
     DecodeError,
-    Imu,
-    JointState,
     Keys,
     ModeRequest,
-    MotorCommand,
-    Odometry,
     PauseRequest,
     ResetRequest,
     ResumeRequest,
@@ -106,7 +103,7 @@ class SimService:
         self.jobs: queue.Queue[Job] = queue.Queue()
         self.command_refusals = Refusals(logger, "command")
         self.request_refusals = Refusals(logger, "request")
-        self.command_codec = Codec(MotorCommand)
+        self.command_codec = Codec(topics.MOTORS.message)
         self.reply_codec = Codec(CtlReply)
         self.info_codec = Codec(RobotInfo)
         self.input_cap_bytes = vector_cap_bytes(sim.robot.joint_names)
@@ -119,10 +116,10 @@ class SimService:
         self._refresh_info()
 
         keys = self.keys
-        self.pub_joints = TypedPublisher(session, keys.joints, JointState)
-        self.pub_odom = TypedPublisher(session, keys.odom, Odometry)
-        self.pub_imu = TypedPublisher(session, keys.imu, Imu)
-        self.pub_status = TypedPublisher(session, keys.sim_status, SimStatus)
+        self.pub_joints = TypedPublisher.of(session, keys, topics.JOINTS)
+        self.pub_odom = TypedPublisher.of(session, keys, topics.ODOM)
+        self.pub_imu = TypedPublisher.of(session, keys, topics.IMU)
+        self.pub_status = TypedPublisher.of(session, keys, topics.SIM_STATUS)
         # Commands arrive through a small ring kept by zenoh (in Rust): when a flood outruns the
         # decoding thread, the oldest samples are dropped there, before they cost the GIL anything,
         # and the newest command never waits behind a backlog (a plain callback queues 256 samples

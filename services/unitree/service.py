@@ -26,7 +26,7 @@ import zenoh
 
 from zensim.common.logs import RateLimitedLog
 from zensim.common.wire import TypedPublisher, payload_of
-from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, MotorCommand, RobotInfo, UnitreeStatus
+from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, RobotInfo, UnitreeStatus, topics
 
 from . import switcher
 from .codec import NUM_MOTORS, CodecError, decode_low_cmd
@@ -96,8 +96,8 @@ class UnitreeAdapter:
         self._reject_log = RateLimitedLog(logger, 1.0)
         self._state_log = RateLimitedLog(logger, 5.0)
         self._ab_logged = False
-        self._motors = TypedPublisher(session, keys.motors, MotorCommand)
-        self._status = TypedPublisher(session, keys.unitree_status, UnitreeStatus)
+        self._motors = TypedPublisher.of(session, keys, topics.MOTORS)
+        self._status = TypedPublisher.of(session, keys, topics.UNITREE_STATUS)
         self._subscribers = [
             session.declare_subscriber(keys.joints, self._on_joints),
             session.declare_subscriber(keys.imu, self._on_imu),

@@ -36,6 +36,7 @@ from zensim.common.logs import RateLimitedLog
 from zensim.common.session import StartupError
 from zensim.common.wire import TypedPublisher, decode_input, error_text
 from zensim.robots.mesh_files import mesh_refusal
+from zensim.schemas import topics
 from zensim.schemas import (
     Codec,
     CtlReply,
@@ -108,7 +109,7 @@ class VizService:
         self._last_drawn = (-1, -1, -1)
 
         self._codecs = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus, RobotInfo, CtlReply)}
-        self.cmd_publisher = TypedPublisher(session, self.keys.joint_targets, JointTargets)
+        self.cmd_publisher = TypedPublisher.of(session, self.keys, topics.JOINT_TARGETS)
         self._declared = [
             session.declare_subscriber(self.keys.joints, self._store(self.joints, JointState)),
             session.declare_subscriber(self.keys.odom, self._store(self.odom, Odometry)),

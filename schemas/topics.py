@@ -1,0 +1,139 @@
+"""The topic registry: every key of the wire contract, what travels on it, who writes and who reads it.
+
+One table, `TOPICS`, and everything else is read from it: `Keys` builds the
+paths, the sim serves it in `RobotInfo.keys`, services take their codecs'
+message types from it (`topic.message`), and the protocol table in
+docs/protocol.md is generated from it (`python -m zensim.schemas.generate`)
+and checked by a test, so a topic added here without the docs fails CI.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final, Literal
+
+from .messages import (
+    BridgeReport,
+    CtlReply,
+    Imu,
+    JointState,
+    JointTargets,
+    KeyInfo,
+    Message,
+    ModeRequest,
+    MotorCommand,
+    Odometry,
+    PauseRequest,
+    ResetRequest,
+    ResumeRequest,
+    RobotInfo,
+    SimStatus,
+    StepRequest,
+    UnitreeStatus,
+)
+
+Kind = Literal["publication", "queryable", "liveliness"]
+
+
+@dataclass(frozen=True)
+class Topic:
+    """One key of the protocol.
+
+    Args:
+        key: the key under `zensim/{robot}/`; a `{placeholder}` chunk stands for one chunk.
+        kind: publication, queryable or liveliness token.
+        writer: who writes (or serves) it.
+        reader: who reads it.
+        rate: nominal rate, or `on demand`.
+        message: the Struct on the wire (a queryable's request), or None for a payload that is not one.
+        reply: a queryable's reply Struct.
+        payload: what travels when it is not a Struct (`float`, `URDF text (application/xml)`).
+        note: a few words the docs add after the message name.
+    """
+
+    key: str
+    kind: Kind
+    writer: str
+    reader: str
+    rate: str
+    message: type[Message] | None = None
+    reply: type[Message] | None = None
+    payload: str = ""
+    note: str = ""
+
+    def wire_name(self) -> str:
+        """The message as `RobotInfo.keys` names it: struct tags (`reset_request -> ctl_reply`) or the payload."""
+        if self.message is None:
+            return self.payload
+        names = [_tag(self.message)] + ([_tag(self.reply)] if self.reply else [])
+        return " -> ".join(names)
+
+    def doc_name(self) -> str:
+        """The message as the docs name it: class names (`ResetRequest -> CtlReply`) and the note."""
+        if self.message is None:
+            name = self.payload
+        else:
+            name = " -> ".join([self.message.__name__] + ([self.reply.__name__] if self.reply else []))
+        return f"{name} {self.note}".strip()
+
+    def info(self, root: str) -> KeyInfo:
+        """This topic's row for `RobotInfo.keys`, with the full key under `root` (`zensim/g1`)."""
+        return KeyInfo(key=f"{root}/{self.key}", kind=self.kind, message=self.wire_name(), writer=self.writer,
+                       reader=self.reader, rate=self.rate)
+
+
+def _tag(message: type[Message]) -> str:
+    return message.__struct_config__.tag  # type: ignore[return-value]
+
+
+# --- state: sim (and other services) -> anyone ------------------------------------
+JOINTS: Final = Topic("state/joints", "publication", "sim", "anyone", "100 Hz default (`state_rate_hz`), sim time",
+                      JointState)
+ODOM: Final = Topic("state/odom", "publication", "sim", "anyone", "with `state/joints`", Odometry)
+IMU: Final = Topic("state/imu", "publication", "sim", "anyone", "with `state/joints`", Imu)
+SIM_STATUS: Final = Topic("state/sim", "publication", "sim", "anyone", "~10 Hz wall time (`status_rate_hz`)", SimStatus)
+BRIDGE_TARGETS: Final = Topic("state/targets", "publication", "bridge", "viz (ghost), anyone",
+                              "`targets_rate_hz`, default 30 Hz", JointTargets,
+                              note="(all joints, as commanded after clamping and slew)")
+UNITREE_STATUS: Final = Topic("state/unitree", "publication", "unitree (the Unitree DDS adapter, docs/unitree.md)",
+                              "anyone", "`status_rate_hz`, default 2 Hz", UnitreeStatus)
+# --- commands -------------------------------------------------------------------
+MOTORS: Final = Topic("cmd/motors", "publication", "bridge, unitree, or any client (a policy)", "sim",
+                      "any; latest wins at each physics step", MotorCommand)
+JOINT_TARGETS: Final = Topic("cmd/joints", "publication", "sliders, any client", "bridge", "any; latest wins",
+                             JointTargets)
+JOINT_TARGET: Final = Topic("cmd/joint/{joint}", "publication", "any client", "bridge", "any; latest wins",
+                            payload="float", note="(a bare number: JSON/text or msgpack)")
+BRIDGE_REPORT: Final = Topic("report/bridge", "publication", "bridge", "anyone", "one per rejected or clamped input",
+                             BridgeReport)
+# --- control: queries the sim answers --------------------------------------------
+CTL_RESET: Final = Topic("ctl/reset", "queryable", "any client", "sim", "on demand", ResetRequest, CtlReply)
+CTL_PAUSE: Final = Topic("ctl/pause", "queryable", "any client", "sim", "on demand", PauseRequest, CtlReply)
+CTL_RESUME: Final = Topic("ctl/resume", "queryable", "any client", "sim", "on demand", ResumeRequest, CtlReply)
+CTL_STEP: Final = Topic("ctl/step", "queryable", "any client", "sim", "on demand, while paused", StepRequest, CtlReply,
+                        note="(after the steps ran)")
+CTL_MODE: Final = Topic("ctl/mode", "queryable", "any client", "sim", "on demand", ModeRequest, CtlReply)
+# --- description ------------------------------------------------------------------
+ROBOT_INFO: Final = Topic("info/robot", "queryable", "sim", "anyone", "on demand", RobotInfo,
+                          note="(JSON for `?format=json` or a JSON query payload)")
+URDF: Final = Topic("info/urdf", "queryable", "sim", "anyone", "on demand", payload="URDF text (application/xml)")
+MESH: Final = Topic("info/mesh/{path}", "queryable", "sim", "anyone", "on demand",
+                    payload="mesh bytes (application/octet-stream)")
+ALIVE: Final = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree", "anyone",
+                     "while running", payload="token")
+
+TOPICS: Final[tuple[Topic, ...]] = (
+    JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS,
+    MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
+    CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE,
+    ROBOT_INFO, URDF, MESH, ALIVE,
+)
+"""Every topic, in the order the docs list them."""
+
+
+def protocol_table() -> str:
+    """The Markdown protocol table of docs/protocol.md, rendered from `TOPICS`."""
+    rows = ["| key (under `zensim/{robot}/`) | kind | message | writer | reader | rate |", "|---|---|---|---|---|---|"]
+    for topic in TOPICS:
+        rows.append(f"| `{topic.key}` | {topic.kind} | {topic.doc_name()} | {topic.writer} | {topic.reader} | {topic.rate} |")
+    return "\n".join(rows) + "\n"
