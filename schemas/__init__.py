@@ -9,6 +9,8 @@ from .keys import DEFAULT_ROBOT_ID, KEY_TABLE, ROOT, Keys, check_robot_id
 from .messages import (
     SCHEMA_VERSION,
     WIRE_TYPES,
+    AdvanceReply,
+    AppliedCommand,
     BridgeReport,
     CtlReply,
     Gains,
@@ -35,4 +37,5 @@ __all__ = [
     "SCHEMA_VERSION", "WIRE_TYPES", "BridgeReport", "CtlReply", "Gains", "Imu", "JointState",
     "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
+    "AdvanceReply", "AppliedCommand",
 ]

@@ -18,7 +18,7 @@ DEFAULT_ROBOT_ID: Final = "g1"
 ROBOT_ID_PATTERN: Final = re.compile(r"[a-z0-9_-]+")
 SERVICES: Final = ("sim", "bridge", "viz", "router")
 
-CTL_VERBS: Final = ("reset", "pause", "resume", "step", "mode")
+CTL_VERBS: Final = ("reset", "pause", "resume", "step", "mode", "advance")
 
 
 def check_robot_id(robot: str) -> str:
@@ -51,6 +51,8 @@ class Keys:
         self.urdf = f"{self.root}/info/urdf"
         self.mesh_any = f"{self.root}/info/mesh/**"
         self.alive_any = f"{self.root}/alive/*"
+        self.applied = f"{self.root}/state/applied"
+        self.everything = f"{self.root}/**"
 
     def joint_target(self, joint: str) -> str:
         """Key for one joint's bare-number target."""
@@ -125,6 +127,8 @@ KEY_TABLE: Final[tuple[KeyInfo, ...]] = (
     _row("info/robot", "queryable", "robot_info", "sim", "anyone", "on demand"),
     _row("info/urdf", "queryable", "URDF text (application/xml)", "sim", "anyone", "on demand"),
     _row("info/mesh/{path}", "queryable", "mesh bytes (application/octet-stream)", "sim", "anyone", "on demand"),
+    _row("ctl/advance", "queryable", "motor_command -> advance_reply", "any client (a controller)", "sim", "on demand, clock lockstep"),
+    _row("state/applied", "publication", "applied_command", "sim", "anyone (recorder, resim)", "one per lockstep advance"),
     _row("alive/{service}", "liveliness", "token", "each service (sim, bridge, viz)", "anyone", "while running"),
 )
 """Keys relative to `zensim/{robot}`."""

@@ -48,6 +48,12 @@ SAMPLES = {
         status_rate_hz=10, watchdog_timeout_s=0.5, mesh_paths=["meshes/a.STL"], keys=[msgspec.to_builtins(KEY_TABLE[0])],
     ),
 }
+# Lockstep (issue 12): the command a lockstep advance applied, and ctl/advance's answer.
+SAMPLES.update({
+    "applied_command": dict(sim_time_s=0.02, seq=2, steps=10, command=SAMPLES["motor_command"]),
+    "advance_reply": dict(ok=True, sim_time_s=0.04, steps=20, joints=SAMPLES["joint_state"], odom=SAMPLES["odometry"],
+                          imu=SAMPLES["imu"]),
+})
 
 
 def tag(message_type: type) -> str:

@@ -104,6 +104,11 @@ class SimService:
         self.pub_odom = TypedPublisher(session, keys.odom, Odometry)
         self.pub_imu = TypedPublisher(session, keys.imu, Imu)
         self.pub_status = TypedPublisher(session, keys.sim_status, SimStatus)
+        self.lockstep = None
+        if settings.clock == "lockstep":
+            from .lockstep import Lockstep  # imported here: lockstep.py builds on this module
+
+            self.lockstep = Lockstep(self)
         self._declared = [
             session.declare_subscriber(keys.motors, self._on_command),
             session.declare_queryable(keys.ctl("reset"), self._ctl(ResetRequest, self._reset)),
@@ -127,7 +132,9 @@ class SimService:
             if mode not in self._robots_by_mode:
                 self._robots_by_mode[mode] = build(sim.files, mode)  # type: ignore[arg-type]
         info = sim.robot_info(self.keys, self.settings.state_rate_hz, self.settings.status_rate_hz, self._robots_by_mode)
-        self._info = msgspec.structs.replace(info, run_id=self.run_id)
+        self._info = msgspec.structs.replace(
+            info, run_id=self.run_id, clock=self.settings.clock,
+            lockstep_steps=self.settings.lockstep_steps if self.settings.clock == "lockstep" else 0)
 
     def _on_info(self, query: zenoh.Query) -> None:
         data, encoding = payload_of(query)
@@ -152,6 +159,9 @@ class SimService:
         data, encoding = payload_of(sample)
         try:
             command = self.command_codec.decode(data, encoding)
+            if self.lockstep is not None:  # lockstep: each command advances, on the loop thread
+                self.lockstep.submit(command)
+                return
             self.sim.accept_command(command)
         except (DecodeError, CommandError) as exc:
             self.sim.reject(str(exc))
@@ -282,6 +292,8 @@ class SimService:
                 step_jitter_p99_s=self.pacer.jitter_p99_s(),
                 resets=sim.resets,
                 run_id=self.run_id,
+                clock=self.settings.clock,
+                waiting=self.lockstep is not None and self.lockstep.waiting,
             )
         )
 
@@ -301,6 +313,9 @@ class SimService:
 
     def run(self) -> None:
         """Step, publish and serve until the stop event is set."""
+        if self.lockstep is not None:
+            self.lockstep.run()
+            return
         sim, settings = self.sim, self.settings
         publish_every = max(1, round(1.0 / (settings.state_rate_hz * sim.timestep_s)))
         publish_period_s = 1.0 / settings.state_rate_hz
@@ -350,6 +365,8 @@ class SimService:
 
     def close(self) -> None:
         self.token.undeclare()
+        if self.lockstep is not None:
+            self.lockstep.close()
         for entity in self._declared:
             entity.undeclare()
         for publisher in (self.pub_joints, self.pub_odom, self.pub_imu, self.pub_status):

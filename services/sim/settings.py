@@ -45,6 +45,10 @@ class SimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     """Largest accepted kd in a motor command, N m s/rad."""
     paused: bool = False
     """Start paused (step with ctl/step, go with ctl/resume)."""
+    clock: Literal["realtime", "lockstep"] = "realtime"
+    """realtime (paced by rtf) or lockstep (each motor command advances lockstep_steps, then time stands still)."""
+    lockstep_steps: int = 10
+    """Lockstep: physics steps each motor command advances (10 = 20 ms at the G1's 2 ms step)."""
     log_level: str = "INFO"
     """Python log level."""
     zenoh: ZenohSettings = ZenohSettings()
@@ -57,5 +61,7 @@ class SimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             raise ValueError("rates must be > 0")
         if self.watchdog_timeout_s <= 0:
             raise ValueError("`watchdog_timeout_s` must be > 0")
+        if not 1 <= self.lockstep_steps <= 100_000:
+            raise ValueError("`lockstep_steps` must be in 1..100000")
         if self.timestep_s is not None and not 0 < self.timestep_s <= 0.05:
             raise ValueError("`timestep_s` must be in (0, 0.05]")
