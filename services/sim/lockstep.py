@@ -9,12 +9,16 @@ Why the ctl/ plane for the request/reply form: every queryable that acts on the 
 ctl/, so an access-control rule on `ctl/**` covers it with the others, and cmd/ stays the plane of
 fire-and-forget publications with latest-wins semantics.
 
-Commands from both paths run on the service's loop thread through the same job queue as the ctl
-requests, so a step never interleaves with a reset or a pause, and everything happens in the order
-it arrived. The loop never steps on its own: no pacing, no watchdog (the watchdog measures wall time,
-and between two commands of a lockstep client no sim time passes). From the same reset and the same
-commands the states are bit-identical (MuJoCo is deterministic on one machine and build; the
-commands are the only input).
+A command is stepped right on the zenoh callback thread that received it, under one physics lock
+that the loop thread also holds while it runs ctl requests (reset, pause, step): a step never
+interleaves with a reset, and no thread hand-off sits in the controller's round trip. A ctl/advance
+query is answered before the states go out to everyone else (the asking client waits; the others
+only listen). Zenoh runs one subscriber's callbacks one after the other, so commands on cmd/motors
+are stepped in arrival order; a client that sends faster than the physics runs is pushed back by
+zenoh's own queue. The loop never steps on its own: no pacing, no watchdog (the watchdog measures
+wall time, and between two commands of a lockstep client no sim time passes). From the same reset
+and the same commands the states are bit-identical (MuJoCo is deterministic on one machine and
+build; the commands are the only input).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import logging
 import queue
 import threading
 import time
+from dataclasses import dataclass
 
 import zenoh
 
@@ -32,7 +37,6 @@ from zensim.schemas import (
     AdvanceReply,
     AppliedCommand,
     Codec,
-    CtlReply,
     DecodeError,
     MotorCommand,
     ResetRequest,
@@ -41,16 +45,22 @@ from zensim.schemas import (
 )
 
 from .physics import CommandError
-from .service import REQUEST_TIMEOUT_S, Job, SimService
+from .service import SimService
 
 logger = logging.getLogger("zensim.sim.lockstep")
 
-MAX_PENDING = 256
-"""Commands from cmd/motors waiting for the loop; more are rejected (a flood must not grow memory)."""
 IDLE_POLL_S = 0.005
 """How long the loop waits for a command before it checks the status timer and the stop event."""
 MAX_ERROR_CHARS = 300
 """Error texts echoed to a client are cut here."""
+
+
+@dataclass(frozen=True)
+class Advanced:
+    """The outcome of one advance: the reply, and what to publish (None when nothing moved)."""
+
+    reply: AdvanceReply
+    applied: AppliedCommand | None = None
 
 
 class Lockstep:
@@ -65,8 +75,8 @@ class Lockstep:
         self.steps = service.settings.lockstep_steps
         self.applied_seq = 0
         self.waiting = True
-        self._pending = 0
-        self._pending_lock = threading.Lock()
+        self.lock = threading.Lock()
+        """Held while the physics moves or a ctl request runs."""
         self._codec = Codec(MotorCommand)
         self._reply_codec = Codec(AdvanceReply)
         self._reject_log = RateLimitedLog(logger)
@@ -79,19 +89,9 @@ class Lockstep:
     # --- zenoh callbacks: decode, hand over --------------------------------------------------
 
     def submit(self, command: MotorCommand) -> None:
-        """A command from cmd/motors (callback thread): queue it for the loop, bounded."""
-        with self._pending_lock:
-            if self._pending >= MAX_PENDING:
-                self._reject(f"lockstep: more than {MAX_PENDING} commands wait for the physics; command dropped")
-                return
-            self._pending += 1
-        self.service.jobs.put(Job(lambda: self._from_topic(command)))
-
-    def _from_topic(self, command: MotorCommand) -> CtlReply:
-        with self._pending_lock:
-            self._pending -= 1
-        reply = self.advance(command, hold_when_paused=True)
-        return self.service._status_reply(ok=reply.ok, error=reply.error)
+        """A command from cmd/motors (its subscriber's callback thread): step and publish."""
+        with self.lock:
+            self._publish(self.advance(command, hold_when_paused=True))
 
     def _on_advance(self, query: zenoh.Query) -> None:
         data, encoding = payload_of(query)
@@ -106,15 +106,15 @@ class Lockstep:
             self._reject(str(exc))
             self._answer(query, AdvanceReply(ok=False, error=str(exc)[:MAX_ERROR_CHARS]), fmt)
             return
-        job = Job(lambda: self.advance(command, hold_when_paused=False))  # type: ignore[arg-type,return-value]
-        self.service.jobs.put(job)
-        if not job.done.wait(REQUEST_TIMEOUT_S):
-            self._answer(query, AdvanceReply(ok=False, error="the sim loop did not answer in time"), fmt)
-            return
-        reply = job.reply
-        if not isinstance(reply, AdvanceReply):  # the job failed and the loop answered with a CtlReply
-            reply = AdvanceReply(ok=False, error=getattr(reply, "error", "failed"))
-        self._answer(query, reply, fmt)
+        with self.lock:
+            try:
+                advanced = self.advance(command, hold_when_paused=False)
+            except Exception as exc:  # a failed step must not leave the client without an answer
+                logger.exception("ctl/advance failed")
+                advanced = Advanced(AdvanceReply(ok=False, error=f"{type(exc).__name__}: {exc}"[:MAX_ERROR_CHARS]))
+            self._answer(query, advanced.reply, fmt)  # the asking client first, then everyone else
+            query.drop()  # ends the query now: a client waiting for the get to complete need not wait for the publishing
+            self._publish(advanced)
 
     def _answer(self, query: zenoh.Query, reply: AdvanceReply, fmt: str) -> None:
         query.reply(query.key_expr, self._reply_codec.encode(reply, fmt),  # type: ignore[arg-type]
@@ -126,40 +126,49 @@ class Lockstep:
 
     # --- the loop thread -----------------------------------------------------------------------
 
-    def advance(self, command: MotorCommand, hold_when_paused: bool) -> AdvanceReply:
-        """Apply `command`, run `lockstep_steps` physics steps, publish and return the new states.
+    def advance(self, command: MotorCommand, hold_when_paused: bool) -> Advanced:
+        """Apply `command` and run `lockstep_steps` physics steps (the caller holds `lock`).
 
         While paused, a command from cmd/motors is held (ctl/step then runs it) and one from
         ctl/advance is refused: neither moves time.
         """
         service, sim = self.service, self.service.sim
         if service.paused and not hold_when_paused:
-            return AdvanceReply(ok=False, error="paused: send ctl/resume (or ctl/step to step by hand)",
-                                sim_time_s=sim.sim_time_s, steps=sim.steps)
+            return Advanced(AdvanceReply(ok=False, error="paused: send ctl/resume (or ctl/step to step by hand)",
+                                         sim_time_s=sim.sim_time_s, steps=sim.steps))
         try:
             sim.accept_command(command)
         except CommandError as exc:
             self._reject(str(exc))
-            return AdvanceReply(ok=False, error=str(exc)[:MAX_ERROR_CHARS], sim_time_s=sim.sim_time_s, steps=sim.steps)
+            return Advanced(AdvanceReply(ok=False, error=str(exc)[:MAX_ERROR_CHARS], sim_time_s=sim.sim_time_s,
+                                         steps=sim.steps))
         if service.paused:
-            return AdvanceReply(ok=True, error=None, sim_time_s=sim.sim_time_s, steps=sim.steps)
+            return Advanced(AdvanceReply(ok=True, sim_time_s=sim.sim_time_s, steps=sim.steps))
         self.applied_seq += 1
-        self.pub_applied.put(AppliedCommand(sim_time_s=sim.sim_time_s, seq=self.applied_seq, steps=self.steps,
-                                            command=command))
+        applied = AppliedCommand(sim_time_s=sim.sim_time_s, seq=self.applied_seq, steps=self.steps, command=command)
         sim.step(self.steps)
         service.pacer.stepped(self.steps)
         if sim.diverged():
             logger.error("the physics diverged (NaN or huge accelerations): resetting")
             service._reset(ResetRequest())
-            return AdvanceReply(ok=False, error="the physics diverged; the sim was reset",
-                                sim_time_s=sim.sim_time_s, steps=sim.steps)
+            return Advanced(AdvanceReply(ok=False, error="the physics diverged; the sim was reset",
+                                         sim_time_s=sim.sim_time_s, steps=sim.steps))
         service.seq += 1
         joints, odom, imu = sim.joint_state(service.seq), sim.odometry(service.seq), sim.imu(service.seq)
-        service.pub_joints.put(joints)
-        service.pub_odom.put(odom)
-        service.pub_imu.put(imu)
+        reply = AdvanceReply(ok=True, sim_time_s=sim.sim_time_s, steps=sim.steps, joints=joints, odom=odom, imu=imu)
+        return Advanced(reply, applied)
+
+    def _publish(self, advanced: Advanced) -> None:
+        """The new instant for everyone: joints, odom, imu (what pub/sub clients wait on), then what was applied."""
+        reply = advanced.reply
+        if advanced.applied is None or reply.joints is None or reply.odom is None or reply.imu is None:
+            return
+        service = self.service
+        service.pub_joints.put(reply.joints)
+        service.pub_odom.put(reply.odom)
+        service.pub_imu.put(reply.imu)
+        self.pub_applied.put(advanced.applied)
         service._check_fall()
-        return AdvanceReply(ok=True, sim_time_s=sim.sim_time_s, steps=sim.steps, joints=joints, odom=odom, imu=imu)
 
     def run(self) -> None:
         """Serve commands and ctl requests until the stop event; publish SimStatus on its wall-clock rate."""
@@ -175,7 +184,7 @@ class Lockstep:
             if now >= next_status:
                 wall = now - last_status_wall
                 rtf = (sim.sim_time_s - last_status_sim) / wall if wall > 0 else 0.0
-                self.waiting = not service.paused and service.jobs.empty()
+                self.waiting = not service.paused and not self.lock.locked()
                 service._publish_status(max(rtf, 0.0))
                 last_status_wall, last_status_sim = now, sim.sim_time_s
                 next_status = now + status_period_s
@@ -186,11 +195,12 @@ class Lockstep:
             job = self.service.jobs.get(timeout=timeout_s) if timeout_s > 0 else self.service.jobs.get_nowait()
         except queue.Empty:
             return
-        try:
-            job.reply = job.run()
-        except Exception as exc:  # a failed request must not take the loop down
-            logger.exception("lockstep job failed")
-            job.reply = self.service._status_reply(ok=False, error=f"{type(exc).__name__}: {exc}"[:MAX_ERROR_CHARS])
+        with self.lock:
+            try:
+                job.reply = job.run()
+            except Exception as exc:  # a failed request must not take the loop down
+                logger.exception("lockstep job failed")
+                job.reply = self.service._status_reply(ok=False, error=f"{type(exc).__name__}: {exc}"[:MAX_ERROR_CHARS])
         job.done.set()
 
     def close(self) -> None:
