@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import re
+import select
 import signal
 import subprocess
 import sys
@@ -34,8 +37,8 @@ def start_recorder(start_service, path: Path, zsession, keys: Keys) -> Service:
     return recorder
 
 
-def stop_recorder(recorder: Service) -> None:
-    recorder.signal(signal.SIGTERM)
+def stop_recorder(recorder: Service, signum: int = signal.SIGTERM) -> None:
+    recorder.signal(signum)
     assert recorder.proc.wait(15) == 0, recorder.log()
 
 
@@ -129,11 +132,31 @@ class TestRecord:
         zsession.put(keys.joint_target("left_knee_joint"), "nan")
         wait_for(lambda: "not recorded" in recorder.log(), 10, "the bad sample logged")
         time.sleep(0.3)
-        stop_recorder(recorder)
+        stop_recorder(recorder, signal.SIGINT)  # Ctrl-C finishes the file as SIGTERM does
         assert "2 samples not recorded" in recorder.log()
         with path.open("rb") as stream:
             messages = [json.loads(m.data) for _s, _c, m in make_reader(stream).iter_messages()]
         assert messages == [{"value": 0.5}]
+
+    def test_progress_line_on_a_terminal(self, service_env, robot_id, tmp_path) -> None:
+        main_fd, terminal_fd = os.openpty()
+        proc = subprocess.Popen([sys.executable, "-m", "zensim", "record", "-o", str(tmp_path / "p.mcap")],
+                                env=service_env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=terminal_fd, start_new_session=True)
+        os.close(terminal_fd)
+        seen = b""
+        try:
+            deadline = time.monotonic() + 30
+            while b"messages" not in seen or b" MB" not in seen:
+                assert time.monotonic() < deadline, seen
+                ready, _, _ = select.select([main_fd], [], [], 1.0)
+                if ready:
+                    seen += os.read(main_fd, 4096)
+        finally:
+            proc.send_signal(signal.SIGINT)
+            assert proc.wait(15) == 0
+            os.close(main_fd)
+        assert re.search(rb"recording .*p\.mcap: +[0-9.]+ s +[0-9]+ messages +[0-9.]+ MB", seen), seen
 
 
 @pytest.fixture

@@ -160,9 +160,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(RecordSettings, args, "zensim record")
     setup_logging(settings.log_level)
     logger.info("starting: %s", describe(settings))
+    try:
+        stream = open(settings.output, "wb")
+    except OSError as exc:
+        print(f"zensim record: cannot write {settings.output}: {exc.strerror}", file=sys.stderr)
+        return 2
     stop = stop_on_signals()
     progress = sys.stderr.isatty()
-    with open(settings.output, "wb") as stream, open_session(settings.zenoh) as session:
+    with stream, open_session(settings.zenoh) as session:
         writer = RecordingWriter(stream, settings.robot_id)
         recorder = Recorder(session, settings, writer)
         fetcher = threading.Thread(target=recorder.fetch_description, args=(stop,), name="record-info", daemon=True)

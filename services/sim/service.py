@@ -6,6 +6,7 @@ Writes:  state/joints, state/odom, state/imu (state_rate_hz, sim time),
 Serves:  ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode (-> CtlReply),
          info/robot (RobotInfo), info/urdf (URDF text), info/mesh/{path} (mesh bytes)
 Token:   alive/sim
+Clock:   `clock lockstep` hands the loop to lockstep.py (each command advances; ctl/advance; state/applied)
 
 One thread owns the physics: the loop below. Zenoh callbacks only decode,
 validate and hand over: commands are merged into the simulation's held
