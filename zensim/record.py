@@ -36,7 +36,7 @@ logger = logging.getLogger("zensim.record")
 
 MAX_SAMPLE_BYTES = 4 * 1024 * 1024
 """Larger samples are not recorded (counted): no zensim message comes near this."""
-MAX_QUEUED = 100_000
+MAX_QUEUED = 20_000
 """Samples waiting for the writer; past this the newest are dropped and counted, memory stays bounded."""
 INFO_RETRY_S = 1.0
 PROGRESS_PERIOD_S = 0.5
