@@ -167,10 +167,13 @@ $("mode").addEventListener("change", () => send({ type: "mode", mode: $("mode").
 
 // --- plot panel ------------------------------------------------------------------------------
 // plotly.js (from the plotly wheel, served by the viz) draws the axes; it is loaded only when the
-// panel is first opened, and redraws at most every PLOT_REDRAW_MS so the 3D view keeps its frames.
-const PLOT_WINDOW_S = 10, RTF_WINDOW_S = 60, PLOT_REDRAW_MS = 250, MAX_PLOT_JOINTS = 6;
+// panel is first opened. The 3D view comes first: a redraw waits for the browser to be idle (at most
+// PLOT_REDRAW_MAX_WAIT_MS), happens at most every PLOT_REDRAW_MS, and draws at most
+// PLOT_MAX_POINTS points a curve (a 10 s window at 100 Hz is 1000 samples; the plot is ~600 px wide).
+const PLOT_WINDOW_S = 10, RTF_WINDOW_S = 60, PLOT_REDRAW_MS = 250, PLOT_REDRAW_MAX_WAIT_MS = 1000;
+const PLOT_MAX_POINTS = 300, MAX_PLOT_JOINTS = 6;
 const PLOT_COLOURS = ["#4e9cff", "#ff9f40", "#5ad17a", "#ff5c7a", "#c38bff", "#ffd34e"];
-const plot = { on: false, joints: [], t: [], q: [], target: [], tau: [], rtfT: [], rtf: [], redraws: 0, timer: null };
+const plot = { on: false, joints: [], t: [], q: [], target: [], tau: [], rtfT: [], rtf: [], redraws: 0, redrawMs: 0, timer: null };
 state.plot = plot;
 
 function buildPlotChoices(joints) {
@@ -236,7 +239,14 @@ function onRtf(rtf) {
 
 function scheduleRedraw() {
   if (!plot.on || !window.Plotly || plot.timer !== null) return;
-  plot.timer = setTimeout(() => { plot.timer = null; redrawPlots(); }, PLOT_REDRAW_MS);
+  plot.timer = setTimeout(() => {
+    const idle = window.requestIdleCallback || ((f) => setTimeout(f, 0));
+    idle(() => { plot.timer = null; redrawPlots(); }, { timeout: PLOT_REDRAW_MAX_WAIT_MS });
+  }, PLOT_REDRAW_MS);
+}
+
+function thin(values, stride) {
+  return stride <= 1 ? values.slice() : values.filter((_, i) => i % stride === 0 || i === values.length - 1);
 }
 
 const PLOT_LAYOUT = {
@@ -246,12 +256,15 @@ const PLOT_LAYOUT = {
 
 function redrawPlots() {
   if (!plot.on || $("plots").hidden) return;
+  const started = performance.now();
   const traces = [];
+  const stride = Math.ceil(plot.t.length / PLOT_MAX_POINTS);
+  const t = thin(plot.t, stride);
   plot.joints.forEach((name, i) => {
     const colour = PLOT_COLOURS[i % PLOT_COLOURS.length];
-    traces.push({ x: plot.t, y: plot.q[i], name: name + " q", mode: "lines", line: { color: colour, width: 2 } });
-    traces.push({ x: plot.t, y: plot.target[i], name: "target", mode: "lines", line: { color: colour, width: 1.5, dash: "dash" } });
-    traces.push({ x: plot.t, y: plot.tau[i], name: "torque", mode: "lines", line: { color: colour, width: 1 }, yaxis: "y2", showlegend: false });
+    traces.push({ x: t, y: thin(plot.q[i], stride), name: name + " q", mode: "lines", line: { color: colour, width: 2 } });
+    traces.push({ x: t, y: thin(plot.target[i], stride), name: "target", mode: "lines", line: { color: colour, width: 1.5, dash: "dash" } });
+    traces.push({ x: t, y: thin(plot.tau[i], stride), name: "torque", mode: "lines", line: { color: colour, width: 1 }, yaxis: "y2", showlegend: false });
   });
   // The arrays grow in place: datarevision tells Plotly.react the data changed.
   const joints = Object.assign({}, PLOT_LAYOUT, { datarevision: plot.redraws,
@@ -269,6 +282,7 @@ function redrawPlots() {
       xaxis: { title: { text: "wall time (s)" }, gridcolor: "#3c434e" }, yaxis: { rangemode: "tozero", gridcolor: "#3c434e" } }),
     config);
   plot.redraws += 1;
+  plot.redrawMs += performance.now() - started;   // main-thread time the plots took (benchmarks/viz_plots.py)
 }
 
 $("btn-plot").addEventListener("click", () => setPlotting(!plot.on));
