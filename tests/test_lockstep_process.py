@@ -96,10 +96,12 @@ class TestLockstep:
         assert bad["ok"] is False and "no_such_joint" in bad["error"] and bad["steps"] == steps
         bad = advance(zsession, keys, {"q": "nope"})
         assert bad["ok"] is False and bad["joints"] is None
+        bad = advance(zsession, keys, {"q": [0.0] * 20000})
+        assert bad["ok"] is False and "bytes" in bad["error"] and bad["steps"] == steps
         # A wildcard query reaches the queryable but must not step the sim.
         list(zsession.get(f"{keys.root}/*/advance", payload=json.dumps({"q": [0.0] * 29}), timeout=3.0))
         status = Latest(zsession, keys.sim_status, SimStatus)
-        sim = status.wait(lambda s: s.rejected_commands >= 2, what="the rejections counted")
+        sim = status.wait(lambda s: s.rejected_commands >= 3, what="the rejections counted")
         assert sim.steps == steps
         # msgpack in, msgpack out, as a typed client does it.
         request = msgspec.msgpack.encode({"q": [0.0] * len(info["joint_names"])})

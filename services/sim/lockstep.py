@@ -51,6 +51,8 @@ logger = logging.getLogger("zensim.sim.lockstep")
 
 IDLE_POLL_S = 0.005
 """How long the loop waits for a command before it checks the status timer and the stop event."""
+MAX_REQUEST_BYTES = 64 * 1024
+"""A ctl/advance payload larger than this is refused unread (a G1 command in JSON is about 3 kB)."""
 MAX_ERROR_CHARS = 300
 """Error texts echoed to a client are cut here."""
 
@@ -101,10 +103,14 @@ class Lockstep:
             query.reply_err(b"ctl/advance acts only when queried on its exact key")
             return
         try:
+            if len(data) > MAX_REQUEST_BYTES:
+                raise DecodeError(f"request of {len(data)} bytes, more than {MAX_REQUEST_BYTES}")
             command = self._codec.decode(data, encoding)
         except DecodeError as exc:
             self._reject(str(exc))
-            self._answer(query, AdvanceReply(ok=False, error=str(exc)[:MAX_ERROR_CHARS]), fmt)
+            sim = self.service.sim
+            self._answer(query, AdvanceReply(ok=False, error=str(exc)[:MAX_ERROR_CHARS], sim_time_s=sim.sim_time_s,
+                                             steps=sim.steps), fmt)
             return
         with self.lock:
             try:
