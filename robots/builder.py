@@ -18,17 +18,17 @@ import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Final, Literal
+from typing import Final
 
 import mujoco
 import numpy as np
 
 from zensim.robots import RobotFiles
+from zensim.schemas.messages import Mode
 from zensim.robots.control import DEFAULT_ARMATURE_KG_M2, ControlConfig, ModeConfig, first_match, load_control
 
 logger = logging.getLogger(__name__)
 
-Mode = Literal["floating", "fixed"]
 MODES: Final[tuple[Mode, ...]] = ("floating", "fixed")
 
 ACTUATED_TYPES: Final = frozenset({"revolute", "continuous", "prismatic"})
@@ -224,7 +224,7 @@ def resolve_gains(mode_cfg: ModeConfig, joints: tuple[UrdfJoint, ...]) -> tuple[
 def resolve_pose(control: ControlConfig, joints: tuple[UrdfJoint, ...]) -> np.ndarray:
     """Default joint positions, clipped into the joint limits (a zero pose may lie outside them)."""
     groups = [([pattern], value) for pattern, value in control.pose.items()]
-    q = np.array([float(first_match(j.name, groups) or 0.0) for j in joints])
+    q = np.array([0.0 if (value := first_match(j.name, groups)) is None else float(value) for j in joints])
     lo = np.array([j.lower for j in joints])
     hi = np.array([j.upper for j in joints])
     clipped = np.clip(q, lo, hi)
@@ -235,9 +235,13 @@ def resolve_pose(control: ControlConfig, joints: tuple[UrdfJoint, ...]) -> np.nd
 
 
 def resolve_armature(control: ControlConfig, joints: tuple[UrdfJoint, ...]) -> np.ndarray:
-    """Armature per joint, kg m^2: first matching group, else DEFAULT_ARMATURE_KG_M2."""
+    """Armature per joint, kg m^2: first matching group, else DEFAULT_ARMATURE_KG_M2.
+
+    An explicit 0.0 is a value, not "unset": `first_match(...) or default` turned it into the default.
+    """
     groups = [(g.joints, g.value) for g in control.armature]
-    return np.array([float(first_match(j.name, groups) or DEFAULT_ARMATURE_KG_M2) for j in joints])
+    matched = [first_match(j.name, groups) for j in joints]
+    return np.array([DEFAULT_ARMATURE_KG_M2 if value is None else float(value) for value in matched])
 
 
 # ------------------------------------------------------------------------------------------- spec
@@ -442,7 +446,10 @@ def build(files: RobotFiles, mode: Mode) -> Robot:
             data.qpos[robot.free_qpos_adr:robot.free_qpos_adr + 3] = 0.0
         model.body_pos[base_body_id] = 0.0
         mujoco.mj_kinematics(model, data)
-        height = SPAWN_CLEARANCE_M - _lowest_point_z(model, data)
+        lowest = _lowest_point_z(model, data)
+        # A robot with no collision geometry has no lowest point (inf): its base goes at the
+        # clearance height, not at -inf, which made every step NaN.
+        height = SPAWN_CLEARANCE_M - (lowest if math.isfinite(lowest) else 0.0)
         logger.info("%s: no %s.base_height_m, derived %.4f m from the model's lowest point", info.name, mode, height)
     robot.base_height_m = float(height)
     _place_base(robot, robot.base_height_m)
@@ -560,11 +567,6 @@ def base_tilt_rad(robot: Robot, data: mujoco.MjData) -> float:
     norm2 = w * w + x * x + y * y + z * z
     cos_tilt = 1.0 - 2.0 * (x * x + y * y) / norm2
     return float(math.acos(max(-1.0, min(1.0, cos_tilt))))
-
-
-def is_fallen(robot: Robot, data: mujoco.MjData) -> bool:
-    """Whether the base tilt exceeds the control file's `model.fall_tilt_rad`."""
-    return base_tilt_rad(robot, data) > robot.control.model.fall_tilt_rad
 
 
 def warnings_of(data: mujoco.MjData) -> dict[str, int]:

@@ -4,7 +4,7 @@ Depends on msgspec only (no zenoh, no mujoco, no numpy), so any Python client
 can use it without the simulator's dependencies.
 """
 
-from .codec import JSON, MSGPACK, Codec, DecodeError, decode_scalar, encoding_of, is_json
+from .codec import JSON, MAX_ERROR_CHARS, MSGPACK, Codec, DecodeError, bounded, decode_scalar, encoding_of, is_json, short_repr
 from .keys import DEFAULT_ROBOT_ID, KEY_TABLE, ROOT, Keys, check_robot_id
 from .messages import (
     SCHEMA_VERSION,
@@ -32,7 +32,8 @@ from .messages import (
 )
 
 __all__ = [
-    "JSON", "MSGPACK", "Codec", "DecodeError", "decode_scalar", "encoding_of", "is_json",
+    "JSON", "MAX_ERROR_CHARS", "MSGPACK", "Codec", "DecodeError", "bounded", "decode_scalar", "encoding_of",
+    "is_json", "short_repr",
     "DEFAULT_ROBOT_ID", "KEY_TABLE", "ROOT", "Keys", "check_robot_id",
     "SCHEMA_VERSION", "WIRE_TYPES", "BridgeReport", "CtlReply", "Gains", "Imu", "JointState",
     "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",

@@ -7,7 +7,11 @@ encoding, and a msgpack map can never start with `{` (0x7b is a msgpack
 integer), so the sniff is unambiguous.
 
 Every decode failure raises `DecodeError` (a ValueError) whose message names
-the field, so services can log and report it as is.
+the field, so services can log and report it as is. "Every" is meant
+literally: besides msgspec's own errors, deep nesting surfaces as
+RecursionError and invalid UTF-8 as UnicodeDecodeError, and a hostile client
+sends exactly those. The message is cut to `MAX_ERROR_CHARS`, since it may
+quote the input (a 10 MB joint name must not become a 10 MB status).
 """
 
 from __future__ import annotations
@@ -25,12 +29,30 @@ JSON: Final = "application/json"
 Format = Literal["msgpack", "json"]
 M = TypeVar("M", bound=Message)
 
+MAX_ERROR_CHARS: Final = 240
+"""Longest error text that goes into a log line, a status or a reply."""
+
 _JSON_START: Final = frozenset(b"{[")
+
+# What decoding untrusted bytes can raise besides msgspec's own errors.
+_DECODE_FAILURES: Final = (msgspec.MsgspecError, RecursionError, UnicodeError, ValueError, TypeError, OverflowError)
 _WHITESPACE: Final = b" \t\r\n"
 
 
 class DecodeError(ValueError):
     """A payload that is not a valid message of the expected type."""
+
+
+def bounded(text: str, limit: int = MAX_ERROR_CHARS) -> str:
+    """`text` cut to `limit` characters, saying how long it was: for anything that may echo input."""
+    if len(text) <= limit:
+        return text
+    return f"{text[: limit - 30]}... ({len(text)} chars, cut)"
+
+
+def short_repr(value: object, limit: int = 40) -> str:
+    """repr() of a value taken from input (a joint name), cut to `limit` characters."""
+    return bounded(repr(value), limit)
 
 
 def is_json(payload: bytes, encoding: str | None) -> bool:
@@ -77,9 +99,9 @@ class Codec(Generic[M]):
             if as_json:
                 return self._json_decoder.decode(payload)
             return self._msgpack_decoder.decode(payload)
-        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        except _DECODE_FAILURES as exc:
             read_as = "JSON" if as_json else "msgpack"
-            raise DecodeError(f"invalid {self.message_type.__name__} (read as {read_as}): {exc}") from None
+            raise DecodeError(bounded(f"invalid {self.message_type.__name__} (read as {read_as}): {_reason(exc)}")) from None
 
 
 def encoding_of(fmt: Format) -> str:
@@ -98,8 +120,8 @@ def decode_scalar(payload: bytes, encoding: str | None = None) -> float:
             value = msgspec.json.decode(payload.strip(_WHITESPACE), type=float)
         else:
             value = msgspec.msgpack.decode(payload, type=float)
-    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-        raise DecodeError(f"expected a bare number: {exc}") from None
+    except _DECODE_FAILURES as exc:
+        raise DecodeError(bounded(f"expected a bare number: {_reason(exc)}")) from None
     if not math.isfinite(value):
         raise DecodeError(f"expected a finite number, got {value}")
     return value
@@ -108,3 +130,12 @@ def decode_scalar(payload: bytes, encoding: str | None = None) -> float:
 def _is_printable(payload: bytes) -> bool:
     """Text typed by a person; a msgpack number starts with a control or high byte."""
     return all(32 <= byte < 127 or byte in _WHITESPACE for byte in payload)
+
+
+def _reason(exc: BaseException) -> str:
+    """What went wrong, in words: msgspec's text, or the kind of failure for the others."""
+    if isinstance(exc, RecursionError):
+        return "nested too deeply"
+    if isinstance(exc, UnicodeError):
+        return "invalid UTF-8 in a string"
+    return str(exc) or type(exc).__name__

@@ -16,7 +16,8 @@ from .messages import KeyInfo
 ROOT: Final = "zensim"
 DEFAULT_ROBOT_ID: Final = "g1"
 ROBOT_ID_PATTERN: Final = re.compile(r"[a-z0-9_-]+")
-SERVICES: Final = ("sim", "bridge", "viz", "router")
+SERVICES: Final = ("router", "sim", "bridge", "viz")
+"""The services `zensim up` runs, in start order; each declares `alive/{service}`."""
 
 CTL_VERBS: Final = ("reset", "pause", "resume", "step", "mode", "advance")
 

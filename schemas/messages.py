@@ -158,6 +158,13 @@ class SimStatus(Message, tag="sim_status", kw_only=True):
     run_id: str = ""
     """Random id of this run of the sim process: a new value means the sim restarted (counters and
     held commands start over). Empty from a sim that does not say."""
+    physics_resets: int = 0
+    """Automatic resets after the physics broke (MuJoCo's bad-state warnings, a non-finite state, a
+    base faster or higher than physically possible), since start; each is also counted in `resets`."""
+    last_reset_reason: str | None = None
+    """Why the sim last reset itself (a broken physics state or a fall), if it did."""
+    rejected_requests: int = 0
+    """ctl queries refused since start (malformed, unknown fields, wildcard keys, out of bounds)."""
     clock: Literal["realtime", "lockstep"] = "realtime"
     """`realtime` (paced by `target_rtf`) or `lockstep` (each motor command advances the physics)."""
     waiting: bool = False
@@ -239,7 +246,12 @@ class BridgeReport(Message, tag="bridge_report", kw_only=True):
 # --- control requests (queryables on the sim) -----------------------------
 
 
-class ResetRequest(Message, tag="reset_request", kw_only=True):
+# Requests forbid unknown fields, unlike the other messages: a typo (`{"n_steps": 5}`) must be an
+# error, not a request with every field at its default. A newer client's field that this sim does
+# not know is refused for the same reason: the sim could not honour it.
+
+
+class ResetRequest(Message, tag="reset_request", kw_only=True, forbid_unknown_fields=True):
     """Reset the robot. Everything is optional: an empty request resets to the default pose."""
 
     q: Vector | None = None
@@ -262,15 +274,15 @@ class ResetRequest(Message, tag="reset_request", kw_only=True):
             _check_finite("base_height_m", (self.base_height_m,))
 
 
-class PauseRequest(Message, tag="pause_request", kw_only=True):
+class PauseRequest(Message, tag="pause_request", kw_only=True, forbid_unknown_fields=True):
     """Stop stepping the physics; states keep being published."""
 
 
-class ResumeRequest(Message, tag="resume_request", kw_only=True):
+class ResumeRequest(Message, tag="resume_request", kw_only=True, forbid_unknown_fields=True):
     """Start stepping again after a pause."""
 
 
-class StepRequest(Message, tag="step_request", kw_only=True):
+class StepRequest(Message, tag="step_request", kw_only=True, forbid_unknown_fields=True):
     """Advance a paused sim by `n` steps; the reply comes after they ran."""
 
     n: int = 1
@@ -281,7 +293,7 @@ class StepRequest(Message, tag="step_request", kw_only=True):
             raise ValueError(f"`n` must be in 1..{MAX_STEPS_PER_REQUEST}, got {self.n}")
 
 
-class ModeRequest(Message, tag="mode_request", kw_only=True):
+class ModeRequest(Message, tag="mode_request", kw_only=True, forbid_unknown_fields=True):
     """Switch between floating and fixed base; rebuilds the model and resets."""
 
     mode: Mode

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from zensim.bridge.settings import BridgeSettings
-from zensim.bridge.targets import HeldTargets, RobotModel, RobotModelError
+from zensim.bridge.targets import HeldTargets, RobotModel, UnusableRobotInfo
 from zensim.common.settings import SettingsError, load_settings
 from zensim.schemas import Gains, RobotInfo
 
@@ -49,7 +49,7 @@ class TestRobotModel:
     def test_inconsistent_info_is_refused(self, change: dict) -> None:
         info = robot_info()
         fields = {f: getattr(info, f) for f in info.__struct_fields__}
-        with pytest.raises(RobotModelError):
+        with pytest.raises(UnusableRobotInfo):
             RobotModel.from_info(RobotInfo(**{**fields, **change}))
 
 
@@ -152,7 +152,7 @@ class TestFollowSim:
 
     def test_an_unknown_mode_keeps_the_targets(self) -> None:
         h = held()
-        with pytest.raises(RobotModelError):
+        with pytest.raises(UnusableRobotInfo):
             h.follow_sim("flying", 0)  # type: ignore[arg-type]
         assert h.mode == "floating"
 

@@ -6,6 +6,7 @@ import pytest
 
 from support import REPO
 from zensim.common.settings import settings_table
+from zensim.router import RouterSettings
 from zensim.bridge.settings import BridgeSettings
 from zensim.sim.settings import SimSettings
 from zensim.viz.settings import VizSettings
@@ -13,7 +14,7 @@ from zensim.viz.settings import VizSettings
 
 @pytest.mark.parametrize(
     "readme, settings", [("services/sim/README.md", SimSettings), ("services/bridge/README.md", BridgeSettings),
-     ("services/viz/README.md", VizSettings)]
+     ("services/viz/README.md", VizSettings), ("docs/deployment.md", RouterSettings)]
 )
 def test_service_readme_lists_every_setting(readme: str, settings: type) -> None:
     """Paste `settings_table(...)` output into the README when this fails."""

@@ -96,7 +96,7 @@ class TestLockstep:
         assert bad["ok"] is False and "no_such_joint" in bad["error"] and bad["steps"] == steps
         bad = advance(zsession, keys, {"q": "nope"})
         assert bad["ok"] is False and bad["joints"] is None
-        bad = advance(zsession, keys, {"q": [0.0] * 20000})
+        bad = advance(zsession, keys, {"q": [0.0] * 6000})  # over the sim's cap (20 kB), under the router's (64 kB)
         assert bad["ok"] is False and "bytes" in bad["error"] and bad["steps"] == steps
         # A wildcard query reaches the queryable but must not step the sim.
         list(zsession.get(f"{keys.root}/*/advance", payload=json.dumps({"q": [0.0] * 29}), timeout=3.0))

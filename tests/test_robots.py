@@ -281,6 +281,15 @@ class TestControlFile:
         with pytest.raises(ControlConfigError, match="height"):
             build(robot_files("g1", control=tmp_path / "control.toml"), "floating")
 
+    def test_an_explicit_zero_armature_is_kept(self, tmp_path: Path) -> None:
+        bundled = robot_files("g1").control.read_text()
+        (tmp_path / "control.toml").write_text(bundled.replace("value = 0.025", "value = 0.0", 1))
+        robot = build(robot_files("g1", control=tmp_path / "control.toml"), "fixed")
+        knee = robot.model.joint("left_knee_joint").dofadr[0]
+        hip_pitch = robot.model.joint("left_hip_pitch_joint").dofadr[0]
+        assert robot.model.dof_armature[knee] == 0.0, "an explicit armature of 0 became the default"
+        assert robot.model.dof_armature[hip_pitch] == pytest.approx(0.01)
+
     def test_robot_files(self) -> None:
         assert robot_files() == robot_files("g1") == robot_files("unitree_g1")
         with pytest.raises(FileNotFoundError, match="unknown robot"):

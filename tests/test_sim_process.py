@@ -319,8 +319,13 @@ class TestProcess:
         bend = {"names": ["left_elbow_joint"], "q": [1.0]}
         command_until(zsession, keys_a.motors, bend, lambda: abs(joints_a.value.q[elbow] - 1.0) < 0.05, "sim a tracking")
         assert joints_b.value.q[elbow] == pytest.approx(info["default_q"]["fixed"][elbow], abs=0.02)
-        ctl(zsession, keys_b.ctl("pause"))
-        assert ctl(zsession, keys_a.ctl("resume"))["paused"] is False
+        # Pausing b must leave a running: a's time goes on while b's stands still.
+        assert ctl(zsession, keys_b.ctl("pause"))["paused"] is True
+        t_a = joints_a.wait(what="a state of sim a").sim_time_s
+        joints_a.wait(lambda m: m.sim_time_s > t_a + 0.2, what="sim a stepping while sim b is paused")
+        t_b = joints_b.value.sim_time_s
+        time.sleep(0.3)
+        assert joints_b.value.sim_time_s == t_b, "sim b stepped while paused"
 
 
 def write_mesh_arm(folder: Path) -> Path:

@@ -10,7 +10,8 @@
     zensim record   record a robot's samples into MCAP; replay, resim: play or re-simulate one
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
-flags; see docs/settings.md.
+flags; each service's README has its table (services/*/README.md, the
+router's in docs/deployment.md).
 """
 
 from __future__ import annotations

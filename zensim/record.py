@@ -19,14 +19,14 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from typing import IO
 
 import msgspec
 import zenoh
 
+from zensim.common.entry import fail, serve
 from zensim.common.logs import RateLimitedLog, setup_logging
-from zensim.common.session import open_session
-from zensim.common.settings import ZenohSettings, describe, settings_or_exit
-from zensim.common.shutdown import stop_on_signals
+from zensim.common.settings import ZenohSettings, settings_or_exit
 from zensim.common.wire import payload_of
 from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, decode_scalar
 
@@ -34,6 +34,7 @@ from .mcapfile import ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter, m
 
 logger = logging.getLogger("zensim.record")
 
+PROG = "zensim record"
 MAX_SAMPLE_BYTES = 4 * 1024 * 1024
 """Larger samples are not recorded (counted): no zensim message comes near this."""
 MAX_QUEUED = 20_000
@@ -155,45 +156,47 @@ class Recorder:
         self._subscriber.undeclare()
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = ["--output" if a == "-o" else a for a in (sys.argv[1:] if argv is None else argv)]
-    settings = settings_or_exit(RecordSettings, args, "zensim record")
-    setup_logging(settings.log_level)
-    logger.info("starting: %s", describe(settings))
-    try:
-        stream = open(settings.output, "wb")
-    except OSError as exc:
-        print(f"zensim record: cannot write {settings.output}: {exc.strerror}", file=sys.stderr)
-        return 2
-    stop = stop_on_signals()
+def record(session: zenoh.Session, settings: RecordSettings, stop: threading.Event, stream: IO[bytes]) -> int:
+    """Record until `stop` (SIGINT/SIGTERM) or `duration_s`; the file is finished whatever ends it."""
     progress = sys.stderr.isatty()
-    with stream, open_session(settings.zenoh) as session:
-        writer = RecordingWriter(stream, settings.robot_id)
-        recorder = Recorder(session, settings, writer)
-        fetcher = threading.Thread(target=recorder.fetch_description, args=(stop,), name="record-info", daemon=True)
-        fetcher.start()
-        started = time.monotonic()
-        next_progress = started
-        logger.info("recording zensim/%s/** into %s", settings.robot_id, settings.output)
-        try:
-            while not stop.is_set():
-                recorder.drain(0.05)
-                now = time.monotonic()
-                if settings.duration_s and now - started >= settings.duration_s:
-                    break
-                if progress and now >= next_progress:
-                    next_progress = now + PROGRESS_PERIOD_S
-                    sys.stderr.write(f"\rrecording {settings.output}: {now - started:7.1f} s  "
-                                     f"{recorder.written} messages  {recorder.bytes_written / 1e6:.2f} MB  ")
-                    sys.stderr.flush()
-        finally:
-            recorder.close()
-            stop.set()
-            recorder.drain(0.0)
-            writer.finish()
-            if progress:
-                sys.stderr.write("\n")
+    writer = RecordingWriter(stream, settings.robot_id)
+    recorder = Recorder(session, settings, writer)
+    fetcher = threading.Thread(target=recorder.fetch_description, args=(stop,), name="record-info", daemon=True)
+    fetcher.start()
+    started = time.monotonic()
+    next_progress = started
+    logger.info("recording zensim/%s/** into %s", settings.robot_id, settings.output)
+    try:
+        while not stop.is_set():
+            recorder.drain(0.05)
+            now = time.monotonic()
+            if settings.duration_s and now - started >= settings.duration_s:
+                break
+            if progress and now >= next_progress:
+                next_progress = now + PROGRESS_PERIOD_S
+                sys.stderr.write(f"\rrecording {settings.output}: {now - started:7.1f} s  "
+                                 f"{recorder.written} messages  {recorder.bytes_written / 1e6:.2f} MB  ")
+                sys.stderr.flush()
+    finally:
+        recorder.close()
+        stop.set()
+        recorder.drain(0.0)
+        writer.finish()
+        if progress:
+            sys.stderr.write("\n")
     logger.info("wrote %s: %d messages (%.2f MB of JSON) in %.1f s; %d samples not recorded",
                 settings.output, recorder.written, recorder.bytes_written / 1e6, time.monotonic() - started,
                 recorder.skipped)
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = ["--output" if a == "-o" else a for a in (sys.argv[1:] if argv is None else argv)]
+    settings = settings_or_exit(RecordSettings, args, PROG)
+    setup_logging(settings.log_level)
+    try:
+        stream = open(settings.output, "wb")
+    except OSError as exc:
+        return fail(PROG, f"cannot write {settings.output}: {exc.strerror}")
+    with stream:
+        return serve(PROG, settings, lambda session, s, stop: record(session, s, stop, stream))

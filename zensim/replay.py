@@ -21,10 +21,9 @@ from collections.abc import Sequence
 import msgspec
 import zenoh
 
+from zensim.common.entry import fail, serve
 from zensim.common.logs import setup_logging
-from zensim.common.session import open_session
-from zensim.common.settings import ZenohSettings, describe, settings_or_exit
-from zensim.common.shutdown import stop_on_signals
+from zensim.common.settings import ZenohSettings, settings_or_exit
 from zensim.common.wire import TypedPublisher, reply
 from zensim.schemas import Keys, Message, check_robot_id
 
@@ -32,6 +31,7 @@ from .mcapfile import Recording, read_recording
 
 logger = logging.getLogger("zensim.replay")
 
+PROG = "zensim replay"
 REPLAYED_PREFIX = "state/"
 LIVE_SIM_CHECK_S = 1.0
 
@@ -41,7 +41,7 @@ class ReplaySettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
 
     file: str = ""
     """The MCAP file to replay (the first argument)."""
-    robot_id: str = ""
+    robot_id: str | None = None
     """Robot id to publish under; default: the recorded one."""
     rate: float = 1.0
     """Playback speed: 1 is the recorded pace, 2 twice as fast, 0 as fast as possible."""
@@ -91,13 +91,13 @@ class Replay:
             query.reply_err(b"the recording holds no info/robot")
             return
         wants_json = "format=json" in str(query.parameters)
-        reply(query, self.info, "json" if wants_json else "msgpack")
+        reply(query, self.keys.robot_info, self.info, "json" if wants_json else "msgpack")
 
     def _on_urdf(self, query: zenoh.Query) -> None:
         if self.recording.urdf is None:
             query.reply_err(b"the recording holds no info/urdf")
             return
-        query.reply(query.key_expr, self.recording.urdf.encode(), encoding=zenoh.Encoding.APPLICATION_XML)
+        query.reply(self.keys.urdf, self.recording.urdf.encode(), encoding=zenoh.Encoding.APPLICATION_XML)
 
     def play(self, rate: float, stop: threading.Event) -> int:
         """Publish every recorded state at its recorded pace / rate; returns how many went out."""
@@ -133,33 +133,32 @@ def live_sim(session: zenoh.Session, keys: Keys) -> bool:
     return any(r.ok is not None for r in replies)
 
 
+def replay(session: zenoh.Session, settings: ReplaySettings, stop: threading.Event, recording: Recording,
+           robot_id: str) -> int:
+    """Publish the recording once (refused when a live sim serves `robot_id`); returns the exit code."""
+    keys = Keys(robot_id)
+    if live_sim(session, keys):
+        return fail(PROG, f"a live sim already serves robot id {robot_id!r}; replay under another one: --robot-id ID")
+    player = Replay(session, recording, robot_id)
+    logger.info("replaying %s under zensim/%s at rate %g (%d messages)", settings.file, robot_id, settings.rate,
+                sum(1 for m in recording.messages if m.relative_key in player.publishers))
+    try:
+        sent = player.play(settings.rate, stop)
+    finally:
+        player.close()
+    logger.info("replay done: %d messages published", sent)
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = leading_file_argument(sys.argv[1:] if argv is None else argv)
-    settings = settings_or_exit(ReplaySettings, args, "zensim replay")
+    settings = settings_or_exit(ReplaySettings, args, PROG)
     if not settings.file:
-        print("usage: zensim replay FILE [--rate R] [--robot-id ID]", file=sys.stderr)
-        return 2
+        return fail(PROG, "give the recording: zensim replay FILE [--rate R] [--robot-id ID]")
     setup_logging(settings.log_level)
-    logger.info("starting: %s", describe(settings))
     try:
         recording = read_recording(settings.file)
         robot_id = check_robot_id(settings.robot_id or recording.robot_id)
     except (OSError, ValueError) as exc:
-        print(f"zensim replay: {exc}", file=sys.stderr)
-        return 2
-    stop = stop_on_signals()
-    with open_session(settings.zenoh) as session:
-        keys = Keys(robot_id)
-        if live_sim(session, keys):
-            print(f"zensim replay: a live sim already serves robot id {robot_id!r}; "
-                  f"replay under another one: --robot-id ID", file=sys.stderr)
-            return 2
-        replay = Replay(session, recording, robot_id)
-        logger.info("replaying %s under zensim/%s at rate %g (%d messages)", settings.file, robot_id, settings.rate,
-                    sum(1 for m in recording.messages if m.relative_key in replay.publishers))
-        try:
-            sent = replay.play(settings.rate, stop)
-        finally:
-            replay.close()
-    logger.info("replay done: %d messages published", sent)
-    return 0
+        return fail(PROG, str(exc))
+    return serve(PROG, settings, lambda session, s, stop: replay(session, s, stop, recording, robot_id))

@@ -23,10 +23,10 @@ import msgspec
 from zensim.common.logs import setup_logging
 from zensim.common.settings import describe, settings_or_exit
 from zensim.common.shutdown import stop_on_signals
+from zensim.schemas.keys import SERVICES
 
 logger = logging.getLogger("zensim.up")
 
-SERVICES = ("router", "sim", "bridge", "viz")
 STOP_TIMEOUT_S = 10.0
 
 

@@ -2,30 +2,23 @@
 
 from __future__ import annotations
 
-import logging
 import sys
 from collections.abc import Sequence
 
+from zensim.common.entry import serve
 from zensim.common.logs import setup_logging
-from zensim.common.session import open_session
-from zensim.common.settings import describe, settings_or_exit
-from zensim.common.shutdown import stop_on_signals
+from zensim.common.settings import settings_or_exit
 
 from .service import run
 from .settings import BridgeSettings
 
-logger = logging.getLogger("zensim.bridge")
+PROG = "zensim bridge"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    settings = settings_or_exit(BridgeSettings, argv, "zensim bridge")
+    settings = settings_or_exit(BridgeSettings, argv, PROG)
     setup_logging(settings.log_level)
-    stop = stop_on_signals()
-    logger.info("starting: %s", describe(settings))
-    with open_session(settings.zenoh) as session:
-        code = run(session, settings, stop)
-    logger.info("bridge stopped")
-    return code
+    return serve(PROG, settings, run)
 
 
 if __name__ == "__main__":

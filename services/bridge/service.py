@@ -24,8 +24,9 @@ import time
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
+from zensim.common.session import StartupError
 from zensim.common.pacing import Pacer
-from zensim.common.wire import TypedPublisher, payload_of
+from zensim.common.wire import TypedPublisher, decode_input, error_text, read_payload
 from zensim.schemas import (
     BridgeReport,
     Codec,
@@ -35,11 +36,13 @@ from zensim.schemas import (
     MotorCommand,
     RobotInfo,
     SimStatus,
+    bounded,
     decode_scalar,
 )
+from zensim.schemas.bounds import INFO_CAP_BYTES, SCALAR_CAP_BYTES, vector_cap_bytes
 
 from .settings import BridgeSettings
-from .targets import HeldTargets, RobotModel, RobotModelError, Verdict
+from .targets import HeldTargets, RobotModel, UnusableRobotInfo, Verdict
 
 logger = logging.getLogger("zensim.bridge")
 
@@ -58,11 +61,11 @@ def fetch_model(session: zenoh.Session, keys: Keys, timeout_s: float, stop: thre
     while not stop.is_set():
         for reply in session.get(keys.robot_info, timeout=timeout_s):
             if reply.ok is None:
-                waiting.warning("info/robot answered an error: %s", reply.err.payload.to_string())
+                waiting.warning("info/robot answered an error: %s", error_text(reply.err))
                 continue
             try:
-                return RobotModel.from_info(codec.decode(*payload_of(reply.ok)))
-            except (DecodeError, RobotModelError) as exc:
+                return RobotModel.from_info(codec.decode(*read_payload(reply.ok, INFO_CAP_BYTES)))
+            except (DecodeError, UnusableRobotInfo) as exc:
                 waiting.warning("unusable RobotInfo on %s: %s", keys.robot_info, exc)
         waiting.warning("no sim answers on %s yet; retrying", keys.robot_info)
         stop.wait(RETRY_PAUSE_S)
@@ -94,9 +97,13 @@ class Bridge:
         self._reject_log = RateLimitedLog(logger, 1.0)
         self._clamp_log = RateLimitedLog(logger, 1.0)
         self._status_log = RateLimitedLog(logger, 5.0)
-        self._motors = TypedPublisher(session, keys.motors, MotorCommand)
+        # The bridge's commands are what keeps the robot standing: they go out at real-time priority,
+        # ahead of whatever else a flooding client pushes through the same router.
+        self._motors = TypedPublisher(session, keys.motors, MotorCommand, priority=zenoh.Priority.REAL_TIME)
         self._targets = TypedPublisher(session, keys.bridge_targets, JointTargets)
         self._reports = TypedPublisher(session, keys.bridge_report, BridgeReport)
+        # Sized from the robot, like the sim's caps; the sim's own statuses are far smaller.
+        self._cap_bytes = vector_cap_bytes(model.joint_names)
         self._subscribers = [
             session.declare_subscriber(keys.joint_targets, self._on_targets),
             session.declare_subscriber(keys.joint_target_any, self._on_joint),
@@ -118,7 +125,7 @@ class Bridge:
     def _on_targets(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         try:
-            message = self._targets_codec.decode(*payload_of(sample))
+            message = decode_input(sample, self._targets_codec, self._cap_bytes)
         except DecodeError as exc:
             self._report(key, Verdict(False, str(exc)))
             return
@@ -128,7 +135,7 @@ class Bridge:
         key = str(sample.key_expr)
         try:
             joint = self._keys.joint_from_target_key(key)
-            value = decode_scalar(*payload_of(sample))
+            value = decode_scalar(*read_payload(sample, SCALAR_CAP_BYTES))
         except (DecodeError, ValueError) as exc:
             self._report(key, Verdict(False, str(exc)))
             return
@@ -141,7 +148,7 @@ class Bridge:
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         try:
-            status = self._status_codec.decode(*payload_of(sample))
+            status = decode_input(sample, self._status_codec, self._cap_bytes)
         except DecodeError as exc:
             self._status_log.warning("ignoring bad SimStatus: %s", exc)
             return
@@ -156,7 +163,7 @@ class Bridge:
                         return
                     self._held = HeldTargets(self._held.model, self._slew_rad_s)
                 reset = self._held.follow_sim(status.mode, status.resets)
-        except RobotModelError as exc:
+        except UnusableRobotInfo as exc:
             self._status_log.warning("%s; keeping the current targets", exc)
             return
         if reset:
@@ -178,6 +185,10 @@ class Bridge:
         """Count, log (rate-limited) and publish the verdict on an input that was rejected or clamped."""
         if verdict.accepted and not verdict.clamped:
             return
+        # Everything in a report may echo the input: cut it to a bounded size.
+        key = bounded(key, 200)
+        error = None if verdict.error is None else bounded(verdict.error)
+        clamped = tuple(bounded(name, 64) for name in verdict.clamped)
         with self._lock:
             if verdict.accepted:
                 self._clamped_total += 1
@@ -185,11 +196,11 @@ class Bridge:
                 self._rejected_total += 1
             rejected_total, clamped_total = self._rejected_total, self._clamped_total
         if verdict.accepted:
-            self._clamp_log.warning("clamped to the joint limits on %s: %s", key, ", ".join(verdict.clamped))
+            self._clamp_log.warning("clamped to the joint limits on %s: %s", key, ", ".join(clamped))
         else:
-            self._reject_log.warning("rejected input on %s: %s", key, verdict.error)
+            self._reject_log.warning("rejected input on %s: %s", key, error)
         self._reports.put(BridgeReport(
-            key=key, accepted=verdict.accepted, error=verdict.error, clamped=verdict.clamped,
+            key=key, accepted=verdict.accepted, error=error, clamped=clamped,
             rejected_total=rejected_total, clamped_total=clamped_total,
         ))
 
@@ -223,8 +234,7 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
         try:
             model = RobotModel.from_files(settings.robot, settings.urdf, settings.control)
         except (OSError, ValueError) as exc:
-            logger.error("cannot load the robot files: %s", exc)
-            return 2
+            raise StartupError(f"cannot load the robot files (--robot / --urdf / --control): {bounded(str(exc), 400)}") from None
         logger.info("robot from local files: %d joints", len(model.joint_names))
     else:
         logger.info("asking the sim on %s", keys.robot_info)

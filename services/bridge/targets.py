@@ -20,13 +20,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from zensim.schemas import Mode, RobotInfo
+from zensim.schemas import Mode, RobotInfo, short_repr
 
 MAX_TICK_S = 0.1
 """Longest tick the slew limit accounts for: after a stall the q must not jump by seconds' worth."""
 
 
-class RobotModelError(ValueError):
+class UnusableRobotInfo(ValueError):
     """A robot description the bridge cannot use (vector lengths, a missing mode)."""
 
 
@@ -51,18 +51,18 @@ class RobotModel:
     def __post_init__(self) -> None:
         n = len(self.joint_names)
         if len(set(self.joint_names)) != n:
-            raise RobotModelError("joint_names names a joint more than once")
+            raise UnusableRobotInfo("joint_names names a joint more than once")
         for name, vector in (("q_min", self.q_min), ("q_max", self.q_max)):
             if vector.shape != (n,):
-                raise RobotModelError(f"{name} has {vector.size} values for {n} joints")
+                raise UnusableRobotInfo(f"{name} has {vector.size} values for {n} joints")
         for table_name, table in (("default_q", self.default_q), ("kp", self.kp), ("kd", self.kd)):
             for mode, vector in table.items():
                 if vector.shape != (n,):
-                    raise RobotModelError(f"{table_name}[{mode}] has {vector.size} values for {n} joints")
+                    raise UnusableRobotInfo(f"{table_name}[{mode}] has {vector.size} values for {n} joints")
                 if not np.all(np.isfinite(vector)):
-                    raise RobotModelError(f"{table_name}[{mode}] holds a non-finite value")
+                    raise UnusableRobotInfo(f"{table_name}[{mode}] holds a non-finite value")
         if not self.has_mode(self.mode):
-            raise RobotModelError(f"no default pose and gains for the current mode {self.mode!r}")
+            raise UnusableRobotInfo(f"no default pose and gains for the current mode {self.mode!r}")
 
     def has_mode(self, mode: str) -> bool:
         """Whether the description carries a default pose and gains for `mode`."""
@@ -73,7 +73,7 @@ class RobotModel:
         """The model the sim describes on info/robot.
 
         Raises:
-            RobotModelError: inconsistent vector lengths or no data for the current mode.
+            UnusableRobotInfo: inconsistent vector lengths or no data for the current mode.
         """
         return cls(
             joint_names=tuple(info.joint_names),
@@ -169,11 +169,11 @@ class HeldTargets:
             True when the held targets were reset.
 
         Raises:
-            RobotModelError: the sim switched to a mode the description has no data for.
+            UnusableRobotInfo: the sim switched to a mode the description has no data for.
         """
         changed = mode != self.mode or (self._resets is not None and resets != self._resets)
         if changed and not self.model.has_mode(mode):
-            raise RobotModelError(f"sim is in mode {mode!r}, which the robot description lacks")
+            raise UnusableRobotInfo(f"sim is in mode {mode!r}, which the robot description lacks")
         self._resets = resets
         if changed:
             self.hold_default(mode)
@@ -192,13 +192,14 @@ class HeldTargets:
             return Verdict(False, "names a joint more than once")
         unknown = [name for name in names if name not in self._index]
         if unknown:
-            return Verdict(False, f"unknown joint(s): {', '.join(map(str, unknown))}")
+            shown = ", ".join(short_repr(name) for name in unknown[:3])
+            return Verdict(False, f"unknown joint(s): {shown}" + (f" and {len(unknown) - 3} more" if len(unknown) > 3 else ""))
         for label, values in (("q", q), ("dq", dq)):
             if values is None:
                 continue
             for name, value in zip(names, values):
                 if isinstance(value, bool) or not isinstance(value, (int, float)):
-                    return Verdict(False, f"{label} of {name} is not a number: {value!r}")
+                    return Verdict(False, f"{label} of {name} is not a number: {short_repr(value)}")
                 if not math.isfinite(value):
                     return Verdict(False, f"{label} of {name} is not finite: {value}")
         idx = np.fromiter((self._index[name] for name in names), int, len(names))

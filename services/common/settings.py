@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
+import re
 import sys
 from collections.abc import Mapping, Sequence
 from typing import Any, Literal, TypeVar
@@ -31,6 +33,32 @@ class SettingsError(ValueError):
     """A setting that cannot be parsed or is out of range; names the field."""
 
 
+ENDPOINT_PATTERN = re.compile(r"(?P<proto>[a-z0-9-]+)/(?P<address>[^#?]+)(?P<rest>[#?].*)?")
+"""`proto/address[?metadata][#config]`, the shape of a zenoh locator."""
+PORTED_PROTOCOLS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
+"""Protocols whose address ends in `:port`."""
+KNOWN_PROTOCOLS = PORTED_PROTOCOLS | {"unixsock-stream", "unixpipe", "serial", "vsock"}
+
+
+def check_endpoint(endpoint: str) -> str:
+    """Return `endpoint` when it is a zenoh endpoint zensim can use, else raise ValueError saying why.
+
+    Zenoh itself would accept `tcp/127.0.0.1:99999` or `foo/bar` as a connect endpoint and then
+    wait forever with no word, so the shape is checked here, where the setting's name is known.
+    """
+    match = ENDPOINT_PATTERN.fullmatch(endpoint)
+    if not match:
+        raise ValueError(f"endpoint {endpoint!r} is not of the form proto/address (e.g. tcp/127.0.0.1:7447)")
+    proto, address = match["proto"], match["address"]
+    if proto not in KNOWN_PROTOCOLS:
+        raise ValueError(f"endpoint {endpoint!r}: unknown protocol {proto!r} (known: {', '.join(sorted(KNOWN_PROTOCOLS))})")
+    if proto in PORTED_PROTOCOLS:
+        host, _, port = address.rpartition(":")
+        if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise ValueError(f"endpoint {endpoint!r}: expected {proto}/host:port with a port in 0..65535")
+    return endpoint
+
+
 class ZenohSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """How a service joins the Zenoh network (the flags of zenoh's own examples)."""
 
@@ -44,6 +72,14 @@ class ZenohSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """A zenoh JSON5 config file; the settings above override its fields."""
     multicast_scouting: bool = True
     """Find peers by UDP multicast; turn off when endpoints are explicit."""
+
+    def __post_init__(self) -> None:
+        for field, endpoints in (("connect", self.connect), ("listen", self.listen)):
+            for endpoint in endpoints:
+                try:
+                    check_endpoint(endpoint)
+                except ValueError as exc:
+                    raise ValueError(f"{exc} - at --zenoh-{field} / {ENV_PREFIX}ZENOH_{field.upper()}") from None
 
 
 class CommonSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -122,15 +158,26 @@ def load_settings(
         if raw is not None:
             _set_path(tree, path, _raw_value(raw, typ))
     try:
-        return msgspec.convert(tree, cls, strict=False)
+        settings = msgspec.convert(tree, cls, strict=False)
     except msgspec.ValidationError as exc:
         raise SettingsError(f"bad setting: {_flag_names(str(exc))}") from None
+    for name, path, _, _ in fields:
+        value: Any = settings
+        for part in path:
+            value = getattr(value, part)
+        values = value if isinstance(value, tuple) else (value,)
+        if any(isinstance(v, float) and not math.isfinite(v) for v in values):
+            raise SettingsError(f"bad setting: {value} is not a finite number - "
+                                f"--{name.replace('_', '-')} / {ENV_PREFIX}{name.upper()}")
+    return settings
 
 
 def _flag_names(message: str) -> str:
     """Turn msgspec's `$.zenoh.mode` paths into the flag a user typed."""
     if "$." not in message:
         return message
+    if " - at --" in message:  # the check named the flag itself (a nested struct's __post_init__)
+        return message.split(" - at `$.")[0]
     head, path = message.rsplit("$.", 1)
     name = path.rstrip("`").replace(".", "_")
     head = head.rstrip("`")

@@ -1,15 +1,29 @@
-"""Glue between zenoh samples and the codecs in zensim.schemas."""
+"""Glue between zenoh samples and the codecs in zensim.schemas, and the one way every service reads input.
+
+Every input a service takes from the network goes through `read_payload`
+(size cap before a byte is copied) and a `Codec` (which turns every decode
+failure into DecodeError), and every refusal through `Refusals` (counted,
+text cut, logged at a bounded rate). One path, so no handler can forget a
+step.
+"""
 
 from __future__ import annotations
 
+import logging
+import threading
 from typing import Generic, TypeVar
 
 import zenoh
 
-from zensim.schemas import Codec, Message, encoding_of
+from zensim.schemas import Codec, DecodeError, Message, bounded, encoding_of
 from zensim.schemas.codec import Format
 
+from .logs import RateLimitedLog
+
 M = TypeVar("M", bound=Message)
+
+WILDCARD_CHARS = ("*", "$")
+"""Characters that make a key expression match more than one key."""
 
 
 def payload_of(sample: zenoh.Sample | zenoh.Query) -> tuple[bytes, str | None]:
@@ -20,14 +34,78 @@ def payload_of(sample: zenoh.Sample | zenoh.Query) -> tuple[bytes, str | None]:
     return data, (str(encoding) if encoding is not None else None)
 
 
+def read_payload(sample: zenoh.Sample | zenoh.Query, max_bytes: int) -> tuple[bytes, str | None]:
+    """`payload_of`, after checking the size: an oversize payload is refused before it is copied.
+
+    Raises:
+        DecodeError: the payload is larger than `max_bytes`.
+    """
+    payload = sample.payload
+    size = len(payload) if payload is not None else 0
+    if size > max_bytes:
+        raise DecodeError(f"payload of {size} bytes is over this key's cap of {max_bytes} bytes")
+    return payload_of(sample)
+
+
+def decode_input(sample: zenoh.Sample | zenoh.Query, codec: Codec[M], max_bytes: int) -> M:
+    """Size check, then decode: the one way a service turns an input sample into a message.
+
+    Raises:
+        DecodeError: oversize, malformed or invalid (the text names why, cut to a bounded length).
+    """
+    return codec.decode(*read_payload(sample, max_bytes))
+
+
+def error_text(reply_error: zenoh.ReplyError) -> str:
+    """The text of an error reply, bounded and safe whatever bytes it holds."""
+    payload = reply_error.payload
+    return bounded(payload.to_bytes()[:4096].decode("utf-8", errors="replace") if payload is not None else "")
+
+
+def is_wildcard(key_expr: object) -> bool:
+    """True when a key expression can match several keys (`**`, `*`, `$*`)."""
+    text = str(key_expr)
+    return any(char in text for char in WILDCARD_CHARS)
+
+
+class Refusals:
+    """Counts the inputs a service refused and logs them at a bounded rate, with bounded text.
+
+    Thread-safe: zenoh callbacks on several threads report here.
+
+    Args:
+        logger: where the warnings go.
+        what: how the log line names the inputs (`command`, `request`).
+        period_s: at most one log line per period; the rest are counted in the next line.
+    """
+
+    def __init__(self, logger: logging.Logger, what: str, period_s: float = 1.0) -> None:
+        self.what = what
+        self.count = 0
+        self.last_error: str | None = None
+        self._lock = threading.Lock()
+        self._log = RateLimitedLog(logger, period_s)
+
+    def refuse(self, key: object, reason: str) -> str:
+        """Count one refused input; returns the bounded reason (for a reply or a report)."""
+        text = bounded(reason)
+        with self._lock:
+            self.count += 1
+            self.last_error = text
+        self._log.warning("rejected %s on %s: %s", self.what, bounded(str(key), 120), text)
+        return text
+
+
 class TypedPublisher(Generic[M]):
     """A zenoh publisher declared once that writes one message type in one format."""
 
-    def __init__(self, session: zenoh.Session, key: str, message_type: type[M], fmt: Format = "msgpack") -> None:
+    def __init__(self, session: zenoh.Session, key: str, message_type: type[M], fmt: Format = "msgpack",
+                 priority: zenoh.Priority | None = None) -> None:
         self.key = key
         self._codec = Codec(message_type)
         self._fmt = fmt
-        self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(encoding_of(fmt)))
+        options = {} if priority is None else {"priority": priority}
+        self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(encoding_of(fmt)), **options)
 
     def put(self, message: M) -> None:
         self._publisher.put(self._codec.encode(message, self._fmt))
@@ -36,6 +114,7 @@ class TypedPublisher(Generic[M]):
         self._publisher.undeclare()
 
 
-def reply(query: zenoh.Query, message: Message, fmt: Format = "msgpack") -> None:
-    """Answer a query with a message, on the query's own key."""
-    query.reply(query.key_expr, Codec(type(message)).encode(message, fmt), encoding=zenoh.Encoding(encoding_of(fmt)))
+def reply(query: zenoh.Query, key: str, message: Message, fmt: Format, codec: Codec | None = None) -> None:
+    """Answer a query with a message on `key` (the queryable's own key, never the query's wildcard)."""
+    codec = codec or Codec(type(message))
+    query.reply(key, codec.encode(message, fmt), encoding=zenoh.Encoding(encoding_of(fmt)))

@@ -1,22 +1,30 @@
-"""`zensim sim` / `python -m zensim.sim`: load settings, set up logging, run the service."""
+"""`zensim sim` / `python -m zensim.sim`: load settings, set up logging, build the robot, serve."""
 
 from __future__ import annotations
 
+import functools
 import sys
 from collections.abc import Sequence
 
+from zensim.common.entry import StartupError, fail, serve
 from zensim.common.logs import setup_logging
 from zensim.common.settings import settings_or_exit
 
 from .settings import SimSettings
 
+PROG = "zensim sim"
+
 
 def main(argv: Sequence[str] | None = None) -> int:
-    settings = settings_or_exit(SimSettings, argv, "zensim sim")
+    settings = settings_or_exit(SimSettings, argv, PROG)
     setup_logging(settings.log_level)
-    from .service import run  # imports mujoco: only after the settings parsed
+    from .service import load_simulation, run  # imports mujoco: only after the settings parsed
 
-    return run(settings)
+    try:
+        sim = load_simulation(settings)  # before the session: a bad robot file fails fast
+    except StartupError as exc:
+        return fail(PROG, str(exc))
+    return serve(PROG, settings, functools.partial(run, sim=sim))
 
 
 if __name__ == "__main__":

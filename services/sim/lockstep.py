@@ -31,18 +31,8 @@ from dataclasses import dataclass
 
 import zenoh
 
-from zensim.common.logs import RateLimitedLog
-from zensim.common.wire import TypedPublisher, payload_of
-from zensim.schemas import (
-    AdvanceReply,
-    AppliedCommand,
-    Codec,
-    DecodeError,
-    MotorCommand,
-    ResetRequest,
-    encoding_of,
-    is_json,
-)
+from zensim.common.wire import TypedPublisher, decode_input, payload_of, reply
+from zensim.schemas import AdvanceReply, AppliedCommand, Codec, DecodeError, MotorCommand, bounded, is_json
 
 from .physics import CommandError
 from .service import SimService
@@ -50,11 +40,7 @@ from .service import SimService
 logger = logging.getLogger("zensim.sim.lockstep")
 
 IDLE_POLL_S = 0.005
-"""How long the loop waits for a command before it checks the status timer and the stop event."""
-MAX_REQUEST_BYTES = 64 * 1024
-"""A ctl/advance payload larger than this is refused unread (a G1 command in JSON is about 3 kB)."""
-MAX_ERROR_CHARS = 300
-"""Error texts echoed to a client are cut here."""
+"""How long the loop waits for a ctl request before it checks the status timer and the stop event."""
 
 
 @dataclass(frozen=True)
@@ -81,7 +67,6 @@ class Lockstep:
         """Held while the physics moves or a ctl request runs."""
         self._codec = Codec(MotorCommand)
         self._reply_codec = Codec(AdvanceReply)
-        self._reject_log = RateLimitedLog(logger)
         service.sim.watchdog_enabled = False
         keys = service.keys
         self.advance_key = keys.ctl("advance")
@@ -96,39 +81,36 @@ class Lockstep:
             self._publish(self.advance(command, hold_when_paused=True))
 
     def _on_advance(self, query: zenoh.Query) -> None:
-        data, encoding = payload_of(query)
-        fmt = "msgpack" if data and not is_json(data, encoding) else "json"
+        service, sim = self.service, self.service.sim
+        # Answer in the request's own format (an oversize one too: its first bytes say, and the
+        # router has already capped its size at 64 kB).
+        fmt = "json" if query.payload is None or is_json(*payload_of(query)) else "msgpack"
         if str(query.key_expr) != self.advance_key:
-            # A wildcard query (`zensim/g1/**`) reaches this queryable too; it must not step the sim.
-            query.reply_err(b"ctl/advance acts only when queried on its exact key")
+            # `z_get zensim/g1/**` reaches every queryable: the sim steps only when named.
+            error = service.request_refusals.refuse(query.key_expr, f"ctl/advance acts only on a query for exactly "
+                                                    f"{self.advance_key}; nothing was done")
+            self._answer(query, AdvanceReply(ok=False, error=error, sim_time_s=sim.sim_time_s, steps=sim.steps), fmt)
             return
         try:
-            if len(data) > MAX_REQUEST_BYTES:
-                raise DecodeError(f"request of {len(data)} bytes, more than {MAX_REQUEST_BYTES}")
-            command = self._codec.decode(data, encoding)
+            command = decode_input(query, self._codec, service.input_cap_bytes)
         except DecodeError as exc:
-            self._reject(str(exc))
-            sim = self.service.sim
-            self._answer(query, AdvanceReply(ok=False, error=str(exc)[:MAX_ERROR_CHARS], sim_time_s=sim.sim_time_s,
-                                             steps=sim.steps), fmt)
+            # A bad command is a bad command, whichever way it came: counted with those on cmd/motors.
+            error = service.command_refusals.refuse(query.key_expr, str(exc))
+            sim.reject(error)
+            self._answer(query, AdvanceReply(ok=False, error=error, sim_time_s=sim.sim_time_s, steps=sim.steps), fmt)
             return
         with self.lock:
             try:
                 advanced = self.advance(command, hold_when_paused=False)
             except Exception as exc:  # a failed step must not leave the client without an answer
                 logger.exception("ctl/advance failed")
-                advanced = Advanced(AdvanceReply(ok=False, error=f"{type(exc).__name__}: {exc}"[:MAX_ERROR_CHARS]))
+                advanced = Advanced(AdvanceReply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}")))
             self._answer(query, advanced.reply, fmt)  # the asking client first, then everyone else
             query.drop()  # ends the query now: a client waiting for the get to complete need not wait for the publishing
             self._publish(advanced)
 
-    def _answer(self, query: zenoh.Query, reply: AdvanceReply, fmt: str) -> None:
-        query.reply(query.key_expr, self._reply_codec.encode(reply, fmt),  # type: ignore[arg-type]
-                    encoding=zenoh.Encoding(encoding_of(fmt)))  # type: ignore[arg-type]
-
-    def _reject(self, reason: str) -> None:
-        self.service.sim.reject(reason[:MAX_ERROR_CHARS])
-        self._reject_log.warning("rejected lockstep command: %s", reason[:MAX_ERROR_CHARS])
+    def _answer(self, query: zenoh.Query, message: AdvanceReply, fmt: str) -> None:
+        reply(query, self.advance_key, message, fmt, self._reply_codec)  # type: ignore[arg-type]
 
     # --- the loop thread -----------------------------------------------------------------------
 
@@ -145,19 +127,19 @@ class Lockstep:
         try:
             sim.accept_command(command)
         except CommandError as exc:
-            self._reject(str(exc))
-            return Advanced(AdvanceReply(ok=False, error=str(exc)[:MAX_ERROR_CHARS], sim_time_s=sim.sim_time_s,
-                                         steps=sim.steps))
+            error = service.command_refusals.refuse(self.advance_key, str(exc))
+            sim.reject(error)
+            return Advanced(AdvanceReply(ok=False, error=error, sim_time_s=sim.sim_time_s, steps=sim.steps))
         if service.paused:
             return Advanced(AdvanceReply(ok=True, sim_time_s=sim.sim_time_s, steps=sim.steps))
         self.applied_seq += 1
         applied = AppliedCommand(sim_time_s=sim.sim_time_s, seq=self.applied_seq, steps=self.steps, command=command)
         sim.step(self.steps)
         service.pacer.stepped(self.steps)
-        if sim.diverged():
-            logger.error("the physics diverged (NaN or huge accelerations): resetting")
-            service._reset(ResetRequest())
-            return Advanced(AdvanceReply(ok=False, error="the physics diverged; the sim was reset",
+        reason = sim.broken()
+        if reason:
+            service._physics_reset(reason)
+            return Advanced(AdvanceReply(ok=False, error=bounded(f"the physics broke ({reason}): reset"),
                                          sim_time_s=sim.sim_time_s, steps=sim.steps))
         service.seq += 1
         joints, odom, imu = sim.joint_state(service.seq), sim.odometry(service.seq), sim.imu(service.seq)
@@ -206,7 +188,7 @@ class Lockstep:
                 job.reply = job.run()
             except Exception as exc:  # a failed request must not take the loop down
                 logger.exception("lockstep job failed")
-                job.reply = self.service._status_reply(ok=False, error=f"{type(exc).__name__}: {exc}"[:MAX_ERROR_CHARS])
+                job.reply = self.service._status_reply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}"))
         job.done.set()
 
     def close(self) -> None:

@@ -14,6 +14,7 @@ swapped in whole, so a step never sees half of a command.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -34,6 +35,8 @@ from zensim.robots.builder import (
 )
 from zensim.schemas import (
     SCHEMA_VERSION,
+    bounded,
+    short_repr,
     Gains,
     Imu,
     JointState,
@@ -45,6 +48,35 @@ from zensim.schemas import (
 )
 
 logger = logging.getLogger(__name__)
+
+# Physical bounds on what a command may ask for. Finite is not sane: MuJoCo zeroes every control when
+# one is huge (mjWARN_BADCTRL) and the whole robot collapses, so values no real robot could take are
+# refused whole instead of being passed on.
+TAU_LIMIT_FACTOR = 2.0
+"""Largest feed-forward torque, in multiples of the joint's effort limit (the motor's peak)."""
+DQ_LIMIT_FACTOR = 2.0
+"""Largest target velocity, in multiples of the joint's velocity limit."""
+Q_RANGE_MARGIN_RAD = 2 * math.pi
+"""A target within this of the joint range is clamped to it; one further out is refused."""
+FALLBACK_EFFORT_LIMIT = 1000.0
+"""Effort limit used for the bound when the description gives none (0), N m."""
+FALLBACK_VELOCITY_LIMIT = 100.0
+"""Velocity limit used for the bound when the description gives none (0), rad/s."""
+RESET_HEIGHT_MIN_FACTOR = 0.5
+"""Lowest reset height, as a fraction of the mode's spawn height (lower buries the legs in the floor)."""
+RESET_HEIGHT_MAX_ABOVE_M = 5.0
+"""Highest reset height above the mode's spawn height, m."""
+MAX_BASE_SPEED_M_S = 50.0
+"""A base faster than this has not fallen, it has been thrown by broken physics (free fall from 100 m: 44 m/s)."""
+MAX_BASE_RISE_M = 20.0
+"""A base this far above its spawn height has been launched by broken physics."""
+BROKEN_PHYSICS_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADCTRL,
+)
+"""MuJoCo's own guards: when one fires it has already zeroed the controls or reset mjData."""
 
 
 class CommandError(ValueError):
@@ -122,6 +154,10 @@ class Simulation:
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self.steps = 0
+        effort = np.where(robot.effort_limit > 0, robot.effort_limit, FALLBACK_EFFORT_LIMIT)
+        velocity = np.where(robot.velocity_limit > 0, robot.velocity_limit, FALLBACK_VELOCITY_LIMIT)
+        self._max_tau = TAU_LIMIT_FACTOR * effort
+        self._max_dq = DQ_LIMIT_FACTOR * velocity
 
     @property
     def mode(self) -> Mode:
@@ -149,7 +185,10 @@ class Simulation:
         """
         request = request or ResetRequest()
         q = self._pose_from(request)  # checked before anything changes
+        self._check_height(request)
         if request.mode is not None and request.mode != self.mode:
+            other = build(self.files, request.mode)  # checked against the new mode before switching
+            self._check_height(request, other)
             self._load(request.mode)
             q = self._pose_from(request)
         reset(self.robot, self.data, q, request.base_height_m)
@@ -168,17 +207,45 @@ class Simulation:
         if request.names is None:
             if len(request.q) != self.robot.nu:
                 raise CommandError(f"`q` has {len(request.q)} values, the robot has {self.robot.nu} joints")
-            q[:] = request.q
+            idx = np.arange(self.robot.nu)
         else:
-            q[self._indices(request.names)] = request.q
+            idx = self._indices(request.names)
+        wanted = np.asarray(request.q, float)
+        self._check_range("q", idx, wanted)
+        q[idx] = wanted
         return np.clip(q, self.robot.q_min, self.robot.q_max)
+
+    def _check_height(self, request: ResetRequest, robot: Robot | None = None) -> None:
+        """Refuse a reset height no robot stands at: buried in the floor or far up in the air."""
+        if request.base_height_m is None:
+            return
+        low, high = reset_height_range(robot or self.robot)
+        if not low <= request.base_height_m <= high:
+            raise CommandError(f"`base_height_m` {request.base_height_m:g} is outside [{low:.3g}, {high:.3g}] m")
+
+    def _check_range(self, field: str, idx: np.ndarray, q: np.ndarray) -> None:
+        robot = self.robot
+        far = (q < robot.q_min[idx] - Q_RANGE_MARGIN_RAD) | (q > robot.q_max[idx] + Q_RANGE_MARGIN_RAD)
+        if np.any(far):
+            i = int(np.flatnonzero(far)[0])
+            raise CommandError(f"`{field}` of {robot.joint_names[idx[i]]} is {q[i]:g}, more than a full turn "
+                               f"outside its range [{robot.q_min[idx[i]]:.3g}, {robot.q_max[idx[i]]:.3g}]")
+
+    def _check_bound(self, field: str, idx: np.ndarray, values: np.ndarray, bound: np.ndarray, what: str) -> None:
+        over = np.abs(values) > bound[idx]
+        if np.any(over):
+            i = int(np.flatnonzero(over)[0])
+            raise CommandError(f"`{field}` of {self.robot.joint_names[idx[i]]} is {values[i]:g}, beyond "
+                               f"{bound[idx[i]]:.4g} ({what})")
 
     # --- commands --------------------------------------------------------
 
     def _indices(self, names: tuple[str, ...]) -> np.ndarray:
         unknown = [name for name in names if name not in self._index]
         if unknown:
-            raise CommandError(f"unknown joint(s): {', '.join(unknown)}")
+            shown = ", ".join(short_repr(name) for name in unknown[:3])
+            more = f" and {len(unknown) - 3} more" if len(unknown) > 3 else ""
+            raise CommandError(f"unknown joint(s): {shown}{more}")
         return np.fromiter((self._index[name] for name in names), int, len(names))
 
     def accept_command(self, command: MotorCommand) -> int:
@@ -207,6 +274,13 @@ class Simulation:
             raise CommandError(f"`kp` above the limit {self.limits.max_kp}")
         if np.any(kd > self.limits.max_kd):
             raise CommandError(f"`kd` above the limit {self.limits.max_kd}")
+        self._check_range("q", idx, q)
+        if command.dq is not None:
+            self._check_bound("dq", idx, np.asarray(command.dq, float), self._max_dq,
+                              f"{DQ_LIMIT_FACTOR:g} x the velocity limit")
+        if command.tau is not None:
+            self._check_bound("tau", idx, np.asarray(command.tau, float), self._max_tau,
+                              f"{TAU_LIMIT_FACTOR:g} x the effort limit")
         clipped = np.clip(q, robot.q_min[idx], robot.q_max[idx])
         n_clamped = int(np.count_nonzero(clipped != q))
         with self._lock:
@@ -228,7 +302,7 @@ class Simulation:
     def reject(self, reason: str) -> None:
         """Count a rejected command (decode or validation failure)."""
         self.rejected += 1
-        self.last_error = reason
+        self.last_error = bounded(reason)
 
     def command_age_s(self) -> float | None:
         """Wall time since the newest accepted command; None before the first."""
@@ -283,14 +357,30 @@ class Simulation:
             mujoco.mj_step1(model, data)
         self.steps += n
 
-    def diverged(self) -> bool:
-        """True when MuJoCo hit NaN/huge accelerations since the last reset.
+    def broken(self) -> str | None:
+        """Why the physics state cannot be trusted any more, or None while it is sound.
 
-        MuJoCo then silently resets mjData to the model's reference pose (not
-        the default pose, gains not held); the service follows up with a real
-        reset and says so, instead of streaming a teleported robot.
+        MuJoCo's guards fire first for NaN or huge accelerations, velocities,
+        positions or controls: it then zeroes the controls or silently resets
+        mjData to the model's reference pose every step (time stuck at 0). A
+        state can also be finite and still impossible: a robot launched out
+        of the floor at 500 m/s. The service follows any of these with a real
+        reset and says why, instead of streaming a teleported robot.
         """
-        return self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0
+        data, robot = self.data, self.robot
+        for warning in BROKEN_PHYSICS_WARNINGS:
+            if data.warning[warning].number > 0:
+                return f"MuJoCo {warning.name} (index {data.warning[warning].lastinfo})"
+        if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
+            return "a non-finite position or velocity"
+        if robot.free_qpos_adr >= 0:
+            height = float(data.qpos[robot.free_qpos_adr + 2])
+            speed = float(np.linalg.norm(data.qvel[robot.free_dof_adr:robot.free_dof_adr + 3]))
+            if speed > MAX_BASE_SPEED_M_S:
+                return f"the base moves at {speed:.3g} m/s (more than {MAX_BASE_SPEED_M_S:g})"
+            if height > robot.base_height_m + MAX_BASE_RISE_M:
+                return f"the base is {height:.3g} m high (spawned at {robot.base_height_m:.3g})"
+        return None
 
     def fallen(self) -> bool:
         return self.mode == "floating" and base_tilt_rad(self.robot, self.data) > self.robot.control.model.fall_tilt_rad
@@ -345,3 +435,10 @@ class Simulation:
             mesh_paths=tuple(robot.mesh_files),
             keys=keys.table(),
         )
+
+
+def reset_height_range(robot: Robot) -> tuple[float, float]:
+    """Base heights a reset may ask for in the robot's mode, m: from half the spawn height to 5 m above it."""
+    spawn = robot.base_height_m
+    low = RESET_HEIGHT_MIN_FACTOR * spawn if spawn > 0 else spawn - 0.5
+    return low, spawn + RESET_HEIGHT_MAX_ABOVE_M

@@ -12,12 +12,19 @@ One thread owns the physics: the loop below. Zenoh callbacks only decode,
 validate and hand over: commands are merged into the simulation's held
 targets (physics.py, under a lock), control requests are queued as jobs that
 the loop runs between two steps, and the callback replies once its job ran.
+
+Every input is untrusted: a size cap before decoding (schemas/bounds.py), one
+decode path that turns every failure into a counted, bounded refusal
+(common/wire.py), physical bounds from the robot (physics.py), and control
+queryables that act only on a query for exactly their own key, since a
+wildcard query (`zensim/g1/**`) reaches every queryable at once.
 """
 
 from __future__ import annotations
 
 import logging
 import queue
+import sys
 import threading
 import time
 import uuid
@@ -28,12 +35,9 @@ from pathlib import Path
 import msgspec
 import zenoh
 
-from zensim.common.logs import RateLimitedLog
 from zensim.common.pacing import Pacer
-from zensim.common.session import open_session
-from zensim.common.settings import describe
-from zensim.common.shutdown import stop_on_signals
-from zensim.common.wire import TypedPublisher, payload_of
+from zensim.common.session import StartupError
+from zensim.common.wire import Refusals, TypedPublisher, decode_input, is_wildcard, payload_of, reply
 from zensim.robots import robot_files
 from zensim.robots.builder import Robot, build
 from zensim.schemas import (
@@ -49,11 +53,13 @@ from zensim.schemas import (
     PauseRequest,
     ResetRequest,
     ResumeRequest,
+    RobotInfo,
     SimStatus,
     StepRequest,
-    encoding_of,
+    bounded,
     is_json,
 )
+from zensim.schemas.bounds import vector_cap_bytes
 from zensim.schemas.messages import Message
 
 from .physics import CommandError, Limits, Simulation
@@ -64,6 +70,13 @@ logger = logging.getLogger("zensim.sim")
 REQUEST_TIMEOUT_S = 60.0
 """Longest a control request waits for the loop (a 100000-step ctl/step takes a few s)."""
 PAUSED_POLL_S = 0.005
+COMMAND_RING = 1024
+"""Newest command samples zenoh keeps for the decoding thread; older ones are dropped under a flood.
+
+Large enough that a burst of 1000 bad samples is still counted whole (the decoding thread clears
+about 50 000 a second); small enough that a command waits behind at most ~20 ms of decoding."""
+GIL_SWITCH_INTERVAL_S = 0.0002
+"""Longest the physics thread waits for the GIL while callback threads hold it (CPython default: 5 ms)."""
 FAST_BATCH_STEPS = 10
 """Steps run back to back at rtf 0 with wall-clock states (0.2-0.4 ms of wall time)."""
 
@@ -92,8 +105,14 @@ class SimService:
         self.paused = settings.paused
         self.pacer = Pacer(sim.timestep_s, settings.rtf)
         self.jobs: queue.Queue[Job] = queue.Queue()
-        self.reject_log = RateLimitedLog(logger)
+        self.command_refusals = Refusals(logger, "command")
+        self.request_refusals = Refusals(logger, "request")
         self.command_codec = Codec(MotorCommand)
+        self.reply_codec = Codec(CtlReply)
+        self.info_codec = Codec(RobotInfo)
+        self.input_cap_bytes = vector_cap_bytes(sim.robot.joint_names)
+        self.physics_resets = 0
+        self.last_reset_reason: str | None = None
         self.seq = 0
         self.status_seq = 0
         self._fallen_since: float | None = None
@@ -110,13 +129,19 @@ class SimService:
             from .lockstep import Lockstep  # imported here: lockstep.py builds on this module
 
             self.lockstep = Lockstep(self)
+        # Commands arrive through a small ring kept by zenoh (in Rust): when a flood outruns the
+        # decoding thread, the oldest samples are dropped there, before they cost the GIL anything,
+        # and the newest command never waits behind a backlog (a plain callback queues 256 samples
+        # and then pushes back on the router, which delayed a good client's commands by 100 ms).
+        self._commands = session.declare_subscriber(keys.motors, zenoh.handlers.RingChannel(COMMAND_RING))
+        self._command_thread = threading.Thread(target=self._drain_commands, name="sim-commands", daemon=True)
+        self._command_thread.start()
         self._declared = [
-            session.declare_subscriber(keys.motors, self._on_command),
-            session.declare_queryable(keys.ctl("reset"), self._ctl(ResetRequest, self._reset)),
-            session.declare_queryable(keys.ctl("pause"), self._ctl(PauseRequest, self._pause)),
-            session.declare_queryable(keys.ctl("resume"), self._ctl(ResumeRequest, self._resume)),
-            session.declare_queryable(keys.ctl("step"), self._ctl(StepRequest, self._step)),
-            session.declare_queryable(keys.ctl("mode"), self._ctl(ModeRequest, self._mode)),
+            session.declare_queryable(keys.ctl("reset"), self._ctl("reset", ResetRequest, self._reset)),
+            session.declare_queryable(keys.ctl("pause"), self._ctl("pause", PauseRequest, self._pause)),
+            session.declare_queryable(keys.ctl("resume"), self._ctl("resume", ResumeRequest, self._resume)),
+            session.declare_queryable(keys.ctl("step"), self._ctl("step", StepRequest, self._step)),
+            session.declare_queryable(keys.ctl("mode"), self._ctl("mode", ModeRequest, self._mode)),
             session.declare_queryable(keys.robot_info, self._on_info),
             session.declare_queryable(keys.urdf, self._on_urdf),
             session.declare_queryable(keys.mesh_any, self._on_mesh),
@@ -137,64 +162,96 @@ class SimService:
             info, run_id=self.run_id, clock=self.settings.clock,
             lockstep_steps=self.settings.lockstep_steps if self.settings.clock == "lockstep" else 0)
 
+    # info/* only describes: it may answer a wildcard query, always on its own key (a reply on
+    # `zensim/g1/**` would not name what it is). Its payload is never read (JSON is asked for by
+    # `?format=json`, or by sending any JSON payload, as the reply format of every query here).
+
     def _on_info(self, query: zenoh.Query) -> None:
-        data, encoding = payload_of(query)
-        fmt = "json" if is_json(data, encoding) or _wants_json(query) else "msgpack"
-        self._reply(query, self._info, fmt)
+        fmt = "json" if _wants_json(query) or self._payload_is_json(query) else "msgpack"
+        reply(query, self.keys.robot_info, self._info, fmt, self.info_codec)
 
     def _on_urdf(self, query: zenoh.Query) -> None:
-        query.reply(query.key_expr, self.sim.robot.urdf_text.encode(), encoding=zenoh.Encoding.APPLICATION_XML)
+        query.reply(self.keys.urdf, self.sim.robot.urdf_text.encode(), encoding=zenoh.Encoding.APPLICATION_XML)
 
     def _on_mesh(self, query: zenoh.Query) -> None:
-        path = self.keys.mesh_path(str(query.key_expr))
-        mesh_files = self.sim.robot.mesh_files
-        match = next((f for name, f in mesh_files.items() if self.keys.mesh(name) == str(query.key_expr)), None)
-        if match is None:
-            query.reply_err(f"no mesh {path!r}; RobotInfo.mesh_paths lists the meshes".encode())
+        key = str(query.key_expr)
+        if is_wildcard(key):
+            query.reply_err(b"info/mesh/{path} serves one mesh per query: name its path (RobotInfo.mesh_paths)")
             return
-        query.reply(query.key_expr, Path(match).read_bytes(), encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM)
+        match = next((f for name, f in self.sim.robot.mesh_files.items() if self.keys.mesh(name) == key), None)
+        if match is None:
+            path = key.removeprefix(f"{self.keys.root}/info/mesh/")
+            query.reply_err(bounded(f"no mesh {path!r}; RobotInfo.mesh_paths lists the meshes").encode())
+            return
+        try:
+            data = Path(match).read_bytes()
+        except OSError as exc:
+            query.reply_err(bounded(f"mesh {Path(match).name} cannot be read: {exc.strerror}").encode())
+            return
+        query.reply(key, data, encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM)
+
+    def _payload_is_json(self, query: zenoh.Query) -> bool:
+        payload = query.payload
+        if payload is None or len(payload) > self.input_cap_bytes:
+            return False
+        return is_json(*payload_of(query))
 
     # --- commands --------------------------------------------------------
 
+    def _drain_commands(self) -> None:
+        """Thread: decode and apply commands from the ring until the subscriber is undeclared."""
+        # recv() on the handler, not the subscriber: undeclaring a subscriber that another thread
+        # is blocked in is refused ("Already borrowed"); the handler's recv just ends with ZError.
+        ring = self._commands.handler
+        while True:
+            try:
+                sample = ring.recv()
+            except zenoh.ZError:  # undeclared at shutdown
+                return
+            self._on_command(sample)
+
     def _on_command(self, sample: zenoh.Sample) -> None:
-        data, encoding = payload_of(sample)
         try:
-            command = self.command_codec.decode(data, encoding)
-            if self.lockstep is not None:  # lockstep: each command advances, on the loop thread
+            command = decode_input(sample, self.command_codec, self.input_cap_bytes)
+            if self.lockstep is not None:  # lockstep: each command advances, on this thread
                 self.lockstep.submit(command)
                 return
             self.sim.accept_command(command)
         except (DecodeError, CommandError) as exc:
-            self.sim.reject(str(exc))
-            self.reject_log.warning("rejected command on %s: %s", sample.key_expr, exc)
+            self.sim.reject(self.command_refusals.refuse(sample.key_expr, str(exc)))
 
     # --- control requests -----------------------------------------------
 
-    def _ctl(self, request_type: type[Message], handler: Callable[[Message], CtlReply]) -> Callable[[zenoh.Query], None]:
+    def _ctl(self, verb: str, request_type: type[Message], handler: Callable[[Message], CtlReply]) -> Callable[[zenoh.Query], None]:
+        """The callback of one ctl queryable: exactly one reply per query, whatever it carries."""
         codec = Codec(request_type)
+        own_key = self.keys.ctl(verb)
 
         def on_query(query: zenoh.Query) -> None:
-            data, encoding = payload_of(query)
             # Answer in the request's own format; a bare `z_get` with no payload gets JSON.
-            fmt = "msgpack" if data and not is_json(data, encoding) else "json"
+            fmt = "json" if query.payload is None or self._payload_is_json(query) else "msgpack"
+            if str(query.key_expr) != own_key:
+                # `z_get zensim/g1/**` reaches every queryable: a control acts only when named.
+                error = self.request_refusals.refuse(query.key_expr, f"ctl/{verb} acts only on a query for exactly "
+                                                     f"{own_key}; nothing was done")
+                reply(query, own_key, self._status_reply(ok=False, error=error), fmt, self.reply_codec)
+                return
             try:
-                request = codec.decode(data, encoding)
+                request = decode_input(query, codec, self.input_cap_bytes)
             except DecodeError as exc:
-                self._reply(query, self._status_reply(ok=False, error=str(exc)), fmt)
+                error = self.request_refusals.refuse(query.key_expr, str(exc))
+                reply(query, own_key, self._status_reply(ok=False, error=error), fmt, self.reply_codec)
                 return
             job = Job(lambda: handler(request))
             self.jobs.put(job)
             if not job.done.wait(REQUEST_TIMEOUT_S):
-                self._reply(query, self._status_reply(ok=False, error="the sim loop did not answer in time"), fmt)
-                return
+                job.reply = self._status_reply(ok=False, error="the sim loop did not answer in time")
             assert job.reply is not None
-            self._reply(query, job.reply, fmt)
+            if not job.reply.ok:
+                self.request_refusals.refuse(query.key_expr, job.reply.error or "refused")
+            reply(query, own_key, job.reply, fmt, self.reply_codec)
 
         return on_query
-
-    def _reply(self, query: zenoh.Query, message: Message, fmt: str) -> None:
-        payload = Codec(type(message)).encode(message, fmt)  # type: ignore[arg-type]
-        query.reply(query.key_expr, payload, encoding=zenoh.Encoding(encoding_of(fmt)))  # type: ignore[arg-type]
 
     def _status_reply(self, ok: bool = True, error: str | None = None) -> CtlReply:
         sim = self.sim
@@ -225,6 +282,10 @@ class SimService:
         if not self.paused:
             return self._status_reply(ok=False, error="ctl/step works while paused; send ctl/pause first")
         self.sim.step(request.n)
+        reason = self.sim.broken()
+        if reason:
+            self._physics_reset(reason)
+            return self._status_reply(ok=False, error=f"the physics broke ({reason}): reset")
         self._publish_states()
         return self._status_reply()
 
@@ -255,7 +316,7 @@ class SimService:
                 job.reply = job.run()
             except Exception as exc:  # a failed request must not take the loop down
                 logger.exception("control request failed")
-                job.reply = self._status_reply(ok=False, error=f"{type(exc).__name__}: {exc}")
+                job.reply = self._status_reply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}"))
             job.done.set()
             try:
                 job = self.jobs.get_nowait()
@@ -293,6 +354,9 @@ class SimService:
                 step_jitter_p99_s=self.pacer.jitter_p99_s(),
                 resets=sim.resets,
                 run_id=self.run_id,
+                physics_resets=self.physics_resets,
+                last_reset_reason=self.last_reset_reason,
+                rejected_requests=self.request_refusals.count,
                 clock=self.settings.clock,
                 waiting=self.lockstep is not None and self.lockstep.waiting,
             )
@@ -308,12 +372,25 @@ class SimService:
             self._fallen_since = self.sim.sim_time_s
         elif self.sim.sim_time_s - self._fallen_since >= self.settings.fall_reset_delay_s:
             logger.warning("robot fell: resetting (auto_reset_on_fall)")
+            self.last_reset_reason = "fallen (auto_reset_on_fall)"
             self._reset(ResetRequest())
+
+    def _physics_reset(self, reason: str) -> None:
+        """Follow broken physics with a real reset to the default pose, and say so."""
+        self.physics_resets += 1
+        self.last_reset_reason = bounded(f"the physics broke: {reason}")
+        logger.error("%s: resetting to the default pose", self.last_reset_reason)
+        self._reset(ResetRequest())
 
     # --- the loop --------------------------------------------------------
 
     def run(self) -> None:
         """Step, publish and serve until the stop event is set."""
+        # Zenoh callback threads (commands, queries) take the GIL for a few microseconds per sample.
+        # Under a flood they take it back to back, and CPython hands it to a waiting thread only
+        # after the switch interval (5 ms by default): the physics loop, waking every 2 ms step,
+        # then waits up to 5 ms each time. A short interval bounds that wait.
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
         if self.lockstep is not None:
             self.lockstep.run()
             return
@@ -348,9 +425,10 @@ class SimService:
                 sim.step(n)
                 self.pacer.stepped(n)
                 publish_due = wall_clock_states or sim.steps % publish_every == 0
-                if publish_due and sim.diverged():
-                    logger.error("the physics diverged (NaN or huge accelerations): resetting")
-                    self._reset(ResetRequest())
+                if publish_due:
+                    reason = sim.broken()
+                    if reason:
+                        self._physics_reset(reason)
             now = time.monotonic()
             if publish_due and (not wall_clock_states or now >= next_publish):
                 next_publish = now + publish_period_s
@@ -366,6 +444,8 @@ class SimService:
 
     def close(self) -> None:
         self.token.undeclare()
+        self._commands.undeclare()
+        self._command_thread.join(1.0)
         if self.lockstep is not None:
             self.lockstep.close()
         for entity in self._declared:
@@ -387,26 +467,36 @@ def _wants_json(query: zenoh.Query) -> bool:
     return str(query.parameters).find("format=json") >= 0
 
 
-def run(settings: SimSettings) -> int:
-    """Build the robot, open the session, loop until SIGINT/SIGTERM. Returns the exit code."""
-    stop = stop_on_signals()
-    logger.info("starting: %s", describe(settings))
+def load_simulation(settings: SimSettings) -> Simulation:
+    """Build the robot the settings name.
+
+    Raises:
+        StartupError: a missing or broken URDF, mesh or control file; the text names the file.
+    """
     # An explicit URDF stands alone: it must not pick up the bundled G1's control file.
-    files = robot_files(None if settings.urdf else settings.robot, urdf=settings.urdf, control=settings.control)
-    sim = Simulation(
-        files,
-        settings.mode,
-        Limits(max_kp=settings.max_kp, max_kd=settings.max_kd),
-        watchdog_timeout_s=settings.watchdog_timeout_s,
-        timestep_s=settings.timestep_s,
-    )
+    try:
+        files = robot_files(None if settings.urdf else settings.robot, urdf=settings.urdf, control=settings.control)
+        sim = Simulation(
+            files,
+            settings.mode,
+            Limits(max_kp=settings.max_kp, max_kd=settings.max_kd),
+            watchdog_timeout_s=settings.watchdog_timeout_s,
+            timestep_s=settings.timestep_s,
+        )
+    except (OSError, ValueError) as exc:
+        which = "--urdf / ZENSIM_URDF" if settings.urdf else "--robot / ZENSIM_ROBOT"
+        raise StartupError(f"cannot load the robot ({which}, --control / ZENSIM_CONTROL): {bounded(str(exc), 400)}") from None
     logger.info("robot %s: %d joints, mode %s, step %.4f s", sim.robot.name, sim.robot.nu, sim.mode, sim.timestep_s)
-    with open_session(settings.zenoh) as session:
-        service = SimService(session, settings, sim, stop)
-        logger.info("sim up on %s", service.keys.root)
-        try:
-            service.run()
-        finally:
-            service.close()
+    return sim
+
+
+def run(session: zenoh.Session, settings: SimSettings, stop: threading.Event, sim: Simulation) -> int:
+    """Serve `sim` on the session until `stop` is set. Returns the exit code."""
+    service = SimService(session, settings, sim, stop)
+    logger.info("sim up on %s", service.keys.root)
+    try:
+        service.run()
+    finally:
+        service.close()
     logger.info("sim stopped after %.1f sim s", sim.sim_time_s)
     return 0

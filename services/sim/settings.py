@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import msgspec
 
@@ -23,45 +23,33 @@ class SimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     """Control file for the URDF (default: control.toml beside it, else built-in defaults)."""
     mode: Mode = "floating"
     """floating (free base, gravity) or fixed (base welded in the air, gravity off)."""
-    timestep_s: float | None = None
+    timestep_s: Annotated[float, msgspec.Meta(gt=0, le=0.05)] | None = None
     """Physics step, s (default: the control file's, 0.002)."""
-    rtf: float = 1.0
+    rtf: Annotated[float, msgspec.Meta(ge=0, le=1000)] = 1.0
     """Target real-time factor; 0 runs as fast as possible."""
-    state_rate_hz: float = 100.0
+    state_rate_hz: Annotated[float, msgspec.Meta(gt=0, le=10_000)] = 100.0
     """Rate of state/joints, state/odom and state/imu in sim time, Hz (at most the physics rate)."""
     state_clock: Literal["sim", "wall"] = "sim"
     """Clock of state_rate_hz: sim (one state per 1/rate of sim time) or wall (per 1/rate of wall time)."""
-    status_rate_hz: float = 10.0
+    status_rate_hz: Annotated[float, msgspec.Meta(gt=0, le=1000)] = 10.0
     """Rate of state/sim in wall time, Hz."""
-    watchdog_timeout_s: float = 0.5
+    watchdog_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 0.5
     """Wall time without a motor command after which the default pose is held, s."""
     auto_reset_on_fall: bool = False
     """Reset to the default pose after the robot has been fallen for fall_reset_delay_s."""
-    fall_reset_delay_s: float = 1.0
+    fall_reset_delay_s: Annotated[float, msgspec.Meta(ge=0, le=3600)] = 1.0
     """Sim time a fall lasts before the automatic reset, s."""
-    max_kp: float = 5000.0
+    max_kp: Annotated[float, msgspec.Meta(gt=0, le=1e6)] = 5000.0
     """Largest accepted kp in a motor command, N m/rad."""
-    max_kd: float = 500.0
+    max_kd: Annotated[float, msgspec.Meta(gt=0, le=1e5)] = 500.0
     """Largest accepted kd in a motor command, N m s/rad."""
     paused: bool = False
     """Start paused (step with ctl/step, go with ctl/resume)."""
     clock: Literal["realtime", "lockstep"] = "realtime"
     """realtime (paced by rtf) or lockstep (each motor command advances lockstep_steps, then time stands still)."""
-    lockstep_steps: int = 10
+    lockstep_steps: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 10
     """Lockstep: physics steps each motor command advances (10 = 20 ms at the G1's 2 ms step)."""
     log_level: str = "INFO"
     """Python log level."""
     zenoh: ZenohSettings = ZenohSettings()
     """Zenoh session settings."""
-
-    def __post_init__(self) -> None:
-        if self.rtf < 0:
-            raise ValueError("`rtf` must be >= 0")
-        if self.state_rate_hz <= 0 or self.status_rate_hz <= 0:
-            raise ValueError("rates must be > 0")
-        if self.watchdog_timeout_s <= 0:
-            raise ValueError("`watchdog_timeout_s` must be > 0")
-        if not 1 <= self.lockstep_steps <= 100_000:
-            raise ValueError("`lockstep_steps` must be in 1..100000")
-        if self.timestep_s is not None and not 0 < self.timestep_s <= 0.05:
-            raise ValueError("`timestep_s` must be in (0, 0.05]")

@@ -2,34 +2,26 @@
 
 from __future__ import annotations
 
-import logging
 import sys
 from collections.abc import Sequence
 
+from zensim.common.entry import fail, serve
 from zensim.common.logs import setup_logging
-from zensim.common.session import open_session
-from zensim.common.settings import describe, settings_or_exit
-from zensim.common.shutdown import stop_on_signals
+from zensim.common.settings import settings_or_exit
 
 from .settings import VizSettings
 
-logger = logging.getLogger("zensim.viz")
+PROG = "zensim viz"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    settings = settings_or_exit(VizSettings, argv, "zensim viz")
+    settings = settings_or_exit(VizSettings, argv, PROG)
     if len(settings.ghost_offset_m) != 3:
-        print("zensim viz: --ghost-offset-m needs three numbers x,y,z", file=sys.stderr)
-        return 2
+        return fail(PROG, "--ghost-offset-m needs three numbers x,y,z")
     setup_logging(settings.log_level)
-    stop = stop_on_signals()
-    logger.info("starting: %s", describe(settings))
     from .service import run  # imports tornado and meshcat: only after the settings parsed
 
-    with open_session(settings.zenoh) as session:
-        code = run(session, settings, stop)
-    logger.info("session closed")
-    return code
+    return serve(PROG, settings, run)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ pose, so a pose update is one flat float32 array (`Frame`) that the page
 applies to a known list of paths, instead of one meshcat command per link.
 
 Forward kinematics is a chain of 4x4 products in joint order (~0.1 ms for the
-G1 in numpy), cheaper than yourdfpy's scene graph (1-4 ms per update, NOTES.md)
+G1 in numpy), cheaper than yourdfpy's scene graph (1-4 ms per update, measured)
 and with no MuJoCo model to compile from mesh bytes.
 
 Geometry is lowered with meshcat's own Python objects (`meshcat.geometry`,

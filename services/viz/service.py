@@ -34,7 +34,8 @@ import tornado.netutil
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
-from zensim.common.wire import TypedPublisher, payload_of
+from zensim.common.session import StartupError
+from zensim.common.wire import TypedPublisher, decode_input, error_text, payload_of
 from zensim.schemas import (
     Codec,
     CtlReply,
@@ -51,8 +52,10 @@ from zensim.schemas import (
     RobotInfo,
     SimStatus,
     StepRequest,
+    bounded,
     encoding_of,
 )
+from zensim.schemas.bounds import STATE_CAP_BYTES
 
 from . import panel, plots, scene
 from .settings import VizSettings
@@ -131,9 +134,9 @@ class VizService:
 
         def callback(sample: zenoh.Sample) -> None:
             try:
-                slot.set(codec.decode(*payload_of(sample)))
+                slot.set(decode_input(sample, codec, STATE_CAP_BYTES))
             except DecodeError as exc:
-                self.bad_input.warning("dropped a sample on %s: %s", sample.key_expr, exc)
+                self.bad_input.warning("dropped a sample on %s: %s", bounded(str(sample.key_expr), 120), exc)
 
         return callback
 
@@ -143,9 +146,9 @@ class VizService:
 
         def callback(sample: zenoh.Sample) -> None:
             try:
-                message = codec.decode(*payload_of(sample))
+                message = decode_input(sample, codec, STATE_CAP_BYTES)
             except DecodeError as exc:
-                self.bad_input.warning("dropped a sample on %s: %s", sample.key_expr, exc)
+                self.bad_input.warning("dropped a sample on %s: %s", bounded(str(sample.key_expr), 120), exc)
                 return
             if isinstance(message, JointState):
                 feed.on_state(message.sim_time_s, message.q, message.tau)
@@ -199,7 +202,7 @@ class VizService:
         for reply in replies:
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()
-            raise ValueError(f"{key}: {reply.err.payload.to_string()}")
+            raise ValueError(f"{key}: {error_text(reply.err)}")
         raise TimeoutError(f"no reply on {key} within {self.settings.query_timeout_s} s")
 
     def _fetch_description(self) -> scene.Drawing:
@@ -297,7 +300,7 @@ class VizService:
             "type": "status",
             "alive": alive,
             "description": self.description_state,
-            "sim": msgspec.to_builtins(status) if status is not None else None,
+            "sim": _bounded_texts(msgspec.to_builtins(status)) if status is not None else None,
             "targets": {"names": list(targets.names), "q": list(targets.q)} if targets is not None else None,
             "state_seq": joints.seq if joints is not None else None,
             "frames_sent": self.hub.frames_sent,
@@ -353,9 +356,9 @@ class VizService:
             raw = self._get_bytes(self.keys.ctl(command.verb), Codec(type(request)).encode(request))
             reply = self._codecs[CtlReply].decode(raw)
         except (TimeoutError, ValueError, zenoh.ZError) as exc:
-            out.update(ok=False, error=str(exc))
+            out.update(ok=False, error=bounded(str(exc)))
             return out
-        out.update(msgspec.to_builtins(reply))
+        out.update(_bounded_texts(msgspec.to_builtins(reply)))
         out["type"] = "ctl_reply"
         logger.info("ctl/%s -> ok=%s %s", command.verb, reply.ok, reply.error or "")
         return out
@@ -368,6 +371,11 @@ class VizService:
         self.executor.shutdown(wait=False, cancel_futures=True)
 
 
+def _bounded_texts(fields: dict[str, Any]) -> dict[str, Any]:
+    """A message's fields with every string cut to a bounded length: they go to every browser."""
+    return {name: bounded(value) if isinstance(value, str) else value for name, value in fields.items()}
+
+
 def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) -> int:
     """Serve the page until `stop` is set; returns the exit code."""
     service = VizService(session, settings, stop)
@@ -375,9 +383,9 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
     try:
         sockets = tornado.netutil.bind_sockets(settings.port, address=settings.host)
     except OSError as exc:
-        logger.error("cannot serve on %s:%d: %s", settings.host, settings.port, exc)
         service.close()
-        return 1
+        raise StartupError(f"cannot serve the page on {settings.host}:{settings.port} "
+                           f"(--host / ZENSIM_HOST, --port / ZENSIM_PORT): {exc.strerror or exc}") from None
     server.add_sockets(sockets)
     port = sockets[0].getsockname()[1]
     logger.info("viz up: http://%s:%d/", settings.host, port)
