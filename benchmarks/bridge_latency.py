@@ -170,6 +170,30 @@ def ping_trials(session: zenoh.Session, root: str, trials: int) -> list[float]:
     return latencies
 
 
+def client_config(endpoint: str) -> zenoh.Config:
+    """A plain client of the benchmark's router that waits for it to come up."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("connect/timeout_ms", "-1")
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+def elbow_trials(session: zenoh.Session, keys: Keys) -> tuple[int, np.ndarray, float, float, TorqueProbe]:
+    """Ask the sim for its robot; the elbow's index, the default pose, the step's two targets and the probe."""
+    codec = Codec(RobotInfo)
+    infos: list[RobotInfo] = []
+    wait_until(lambda: infos.extend(codec.decode(*payload_of(r.ok)) for r in session.get(keys.robot_info, timeout=1.0)
+                                    if r.ok) or infos, 30, "info/robot")
+    info = infos[0]
+    i = info.joint_names.index(JOINT)
+    default = np.array(info.default_q[info.mode])
+    kp = info.gains[info.mode].kp[i]
+    threshold = 0.4 * min(info.effort_limit[i], kp * 2 * STEP_RAD)
+    return i, default, float(default[i]) - STEP_RAD, float(default[i]) + STEP_RAD, TorqueProbe(i, threshold)
+
+
 def is_alive(session: zenoh.Session, key: str) -> bool:
     return any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5))
 
@@ -192,12 +216,7 @@ def main() -> int:
     rows: list[tuple[str, list[float], int]] = []
     try:
         procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"client"')
-        conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        conf.insert_json5("connect/timeout_ms", "-1")
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        with zenoh.open(conf) as session:
+        with zenoh.open(client_config(endpoint)) as session:
             procs.start("echo", [sys.executable, "-c", ECHO % (endpoint, keys.root, keys.root, keys.root)])
             wait_until(lambda: is_alive(session, f"{keys.root}/bench/echo"), 30, "the echo process")
             if args.pings:
@@ -205,16 +224,7 @@ def main() -> int:
                              ping_trials(session, keys.root, args.pings), args.pings))
 
             procs.zensim("sim", "--mode", "floating", "--rtf", "1", "--state-rate-hz", args.state_rate_hz)
-            info_codec = Codec(RobotInfo)
-            infos: list[RobotInfo] = []
-            wait_until(lambda: infos.extend(info_codec.decode(*payload_of(r.ok)) for r in session.get(keys.robot_info, timeout=1.0) if r.ok) or infos, 30, "info/robot")
-            info = infos[0]
-            i = info.joint_names.index(JOINT)
-            default = np.array(info.default_q[info.mode])
-            low, high = float(default[i]) - STEP_RAD, float(default[i]) + STEP_RAD
-            kp = info.gains[info.mode].kp[i]
-            threshold = 0.4 * min(info.effort_limit[i], kp * 2 * STEP_RAD)
-            probe = TorqueProbe(i, threshold)
+            i, default, low, high, probe = elbow_trials(session, keys)
             states = session.declare_subscriber(keys.joints, probe.on_state)
 
             motors_codec = Codec(MotorCommand)

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import random
 import sys
 import threading
 import time
@@ -34,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from bridge_latency import JOINT, STEP_RAD, Processes, TorqueProbe, free_port, run_trials, wait_until
+from bridge_latency import Processes, client_config, elbow_trials, free_port, run_trials
 from zensim.common.wire import payload_of
-from zensim.schemas import Codec, Keys, MotorCommand, RobotInfo, SimStatus
+from zensim.schemas import Codec, Keys, MotorCommand, SimStatus
 
 FLOODER = r"""
 import json, os, random, sys, time, zenoh
@@ -120,6 +119,8 @@ def main() -> int:
     parser.add_argument("--trials", type=int, default=150, help="latency trials per phase")
     parser.add_argument("--state-rate-hz", default="500")
     parser.add_argument("--no-nice", action="store_true", help="run the flooders at normal priority")
+    parser.add_argument("--cmd-rate-limit-hz", default="0",
+                        help="the router's per-link rate limit on cmd/** (zensim router --cmd-rate-limit-hz); 0: off")
     args = parser.parse_args()
 
     keys = Keys("overload")
@@ -130,23 +131,11 @@ def main() -> int:
     results: dict[str, dict] = {}
     flood_rates: list[dict] = []
     try:
-        router = procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"client"')
-        conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        conf.insert_json5("connect/timeout_ms", "-1")
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        with zenoh.open(conf) as session:
+        router = procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "",
+                              "--cmd-rate-limit-hz", args.cmd_rate_limit_hz)
+        with zenoh.open(client_config(endpoint)) as session:
             sim = procs.zensim("sim", "--mode", "floating", "--rtf", "1", "--state-rate-hz", args.state_rate_hz)
-            codec = Codec(RobotInfo)
-            infos: list[RobotInfo] = []
-            wait_until(lambda: infos.extend(codec.decode(*payload_of(r.ok)) for r in session.get(keys.robot_info, timeout=1.0) if r.ok) or infos, 30, "info/robot")
-            info = infos[0]
-            i = info.joint_names.index(JOINT)
-            default = np.array(info.default_q[info.mode])
-            low, high = float(default[i]) - STEP_RAD, float(default[i]) + STEP_RAD
-            threshold = 0.4 * min(info.effort_limit[i], info.gains[info.mode].kp[i] * 2 * STEP_RAD)
-            probe = TorqueProbe(i, threshold)
+            i, default, low, high, probe = elbow_trials(session, keys)
             watch = Watch()
             subs = [session.declare_subscriber(keys.joints, lambda s: (probe.on_state(s), watch.on_state(s))),
                     session.declare_subscriber(keys.sim_status, watch.on_status)]
@@ -206,7 +195,7 @@ def main() -> int:
     finally:
         procs.stop_all()
 
-    print(f"\nflooders (niced: {not args.no_nice}):")
+    print(f"\nrouter rate limit on cmd/**: {args.cmd_rate_limit_hz} Hz per link; flooders (niced: {not args.no_nice}):")
     for rate in flood_rates:
         print("  ", rate)
     print(f"\n{'phase':<7} {'worst 1 s RTF':>14} {'states/s':>9} {'worst 1 s':>9} {'p50 ms':>7} {'p99 ms':>7} "

@@ -163,7 +163,7 @@ class TestSettings:
         assert (s.rate_hz, s.slew_rad_s, s.targets_rate_hz) == (100.0, 2.0, 30.0)
 
     def test_env_and_flags(self) -> None:
-        s = load_settings(BridgeSettings, ["--slew-rad-s", "0"], env={"ZENSIM_RATE_HZ": "1000"})
+        s = load_settings(BridgeSettings, ["--slew-rad-s", "0"], env={"ZENSIM_BRIDGE_RATE_HZ": "1000"})
         assert (s.rate_hz, s.slew_rad_s) == (1000.0, 0.0)
 
     @pytest.mark.parametrize("flag, value", [("--rate-hz", "1001"), ("--rate-hz", "0"), ("--slew-rad-s", "-1")])

@@ -21,7 +21,6 @@ import time
 from pathlib import Path
 
 import msgspec
-import pytest
 
 from support import Latest, wait_for
 from test_hostile_clients import decode_reply, no_traceback
@@ -169,7 +168,7 @@ def test_fuzz_every_input_key_and_ctl_verb(start_service, zsession, robot_id):
         assert len(replies) == 1 and replies[0].ok is not None, f"{key} {payload[:60]!r}: {replies}"
         answer = decode_reply(replies[0].ok.payload.to_bytes())
         assert answer["ok"] is False and answer["error"], (key, payload[:80], answer)
-    wildcards = [f"zensim/{robot_id}/**", f"zensim/{robot_id}/ctl/**", f"zensim/*/ctl/reset", "zensim/**"]
+    wildcards = [f"zensim/{robot_id}/**", f"zensim/{robot_id}/ctl/**", "zensim/*/ctl/reset", "zensim/**"]
     for selector in wildcards:
         replies = list(zsession.get(selector, timeout=5.0))
         ctl_answers = [r for r in replies if r.ok is not None and "/ctl/" in str(r.ok.key_expr)]

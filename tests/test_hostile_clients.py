@@ -13,15 +13,14 @@ import socket
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import msgspec
 import pytest
 import zenoh
 
-from support import Latest, Service, ctl, free_port, plain_client, wait_for
-from test_sim_process import command_until, joint_index, put_json, robot_info, sim_keys, wait_alive
-from zensim.schemas import BridgeReport, JointState, Keys, MotorCommand, Odometry, SimStatus
+from support import Latest, Service, ctl, free_port, wait_for
+from test_sim_process import command_until, put_json, sim_keys, wait_alive
+from zensim.schemas import BridgeReport, Odometry, SimStatus
 from zensim.schemas.codec import MAX_ERROR_CHARS
 
 DEEP = b'{"q": [0.1], "x": ' + b"[" * 3_000 + b"]" * 3_000 + b"}"

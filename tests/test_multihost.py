@@ -154,7 +154,7 @@ class Deployment:
         # Clients wait for their router (connect timeout -1), so they need not wait for it here.
         start("sim", ["--mode", "fixed", "--rtf", "1"], client)
         start("bridge", [], client)
-        start("viz", [], dict(client, ZENSIM_HOST="0.0.0.0", ZENSIM_PORT=str(VIZ_PORT)))
+        start("viz", [], dict(client, ZENSIM_VIZ_HOST="0.0.0.0", ZENSIM_VIZ_PORT=str(VIZ_PORT)))
         self.probe = Probe(net, client, log_dir, self.router_endpoint, self.robot_id)
 
     @property

@@ -4,9 +4,17 @@ from __future__ import annotations
 
 import pytest
 
-from zensim.common.settings import SettingsError, load_settings
+from zensim.bridge.settings import BridgeSettings
+from zensim.check import CheckSettings
+from zensim.common.settings import AMBIGUOUS_LEGACY, CommonSettings, SettingsError, env_names, load_settings
 from zensim.router import RouterSettings
 from zensim.sim.settings import SimSettings
+from zensim.up import UpSettings
+from zensim.viz.settings import VizSettings
+
+SERVICE_SETTINGS = (SimSettings, BridgeSettings, VizSettings, RouterSettings, CheckSettings, UpSettings)
+"""Every command's settings: a new command adds its struct here."""
+COMMON_NAMES = set(env_names(CommonSettings)) | {"ZENSIM_LOG_LEVEL"}
 
 
 def test_defaults() -> None:
@@ -49,3 +57,46 @@ def test_bad_values_name_the_setting(argv: list[str], env: dict[str, str], needl
 def test_unknown_flag_exits() -> None:
     with pytest.raises(SystemExit):
         load_settings(SimSettings, ["--no-such-flag", "1"], env={})
+
+
+class TestPerServiceNames:
+    """Shared settings keep one name; a service's own fields carry its prefix; old names fade out."""
+
+    def test_own_fields_carry_the_service_prefix(self) -> None:
+        env = {"ZENSIM_SIM_MODE": "fixed", "ZENSIM_SIM_RTF": "2.5", "ZENSIM_ROBOT_ID": "r2", "ZENSIM_LOG_LEVEL": "DEBUG"}
+        settings = load_settings(SimSettings, [], env=env)
+        assert (settings.mode, settings.rtf, settings.robot_id, settings.log_level) == ("fixed", 2.5, "r2", "DEBUG")
+
+    def test_a_service_ignores_another_services_variables(self) -> None:
+        assert load_settings(BridgeSettings, [], env={"ZENSIM_VIZ_RATE_HZ": "30"}).rate_hz == 100.0
+        assert load_settings(VizSettings, [], env={"ZENSIM_BRIDGE_RATE_HZ": "500"}).rate_hz == 60.0
+
+    def test_first_release_names_still_work_with_a_warning(self, caplog: pytest.LogCaptureFixture) -> None:
+        settings = load_settings(SimSettings, [], env={"ZENSIM_MODE": "fixed"})
+        assert settings.mode == "fixed"
+        assert "ZENSIM_MODE is deprecated" in caplog.text and "ZENSIM_SIM_MODE" in caplog.text
+        # The new name wins over the old one.
+        assert load_settings(SimSettings, [], env={"ZENSIM_MODE": "fixed", "ZENSIM_SIM_MODE": "floating"}).mode == "floating"
+
+    @pytest.mark.parametrize("cls", [BridgeSettings, VizSettings])
+    def test_a_name_two_services_read_differently_is_refused(self, cls: type) -> None:
+        with pytest.raises(SettingsError) as info:
+            load_settings(cls, [], env={"ZENSIM_RATE_HZ": "500"})
+        assert "ZENSIM_BRIDGE_RATE_HZ" in str(info.value) and "ZENSIM_VIZ_RATE_HZ" in str(info.value)
+
+    def test_the_ambiguous_table_is_exactly_the_shared_old_names(self) -> None:
+        readers: dict[str, set[str]] = {}
+        for cls in SERVICE_SETTINGS:
+            for new, legacy in env_names(cls).items():
+                if legacy:
+                    readers.setdefault(legacy, set()).add(new)
+        shared = {legacy: news for legacy, news in readers.items() if len(news) > 1}
+        assert {k: set(v) for k, v in AMBIGUOUS_LEGACY.items()} == shared
+
+    def test_no_two_services_share_a_variable_but_the_common_ones(self) -> None:
+        seen: dict[str, type] = {}
+        for cls in SERVICE_SETTINGS:
+            for name in env_names(cls):
+                if name in seen:
+                    assert name in COMMON_NAMES, f"{name} read by {seen[name].__name__} and {cls.__name__}"
+                seen[name] = cls

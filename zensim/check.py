@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from typing import ClassVar
 
 import msgspec
 
@@ -18,6 +19,7 @@ from zensim.schemas import Keys
 class CheckSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim check`."""
 
+    env_prefix: ClassVar[str] = "CHECK"
     service: str = "sim"
     """Service whose liveliness token to look for (sim, bridge, viz, router)."""
     robot_id: str = "g1"

@@ -19,14 +19,14 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from typing import IO
+from typing import IO, Annotated, ClassVar
 
 import msgspec
 import zenoh
 
 from zensim.common.entry import fail, serve
 from zensim.common.logs import RateLimitedLog, setup_logging
-from zensim.common.settings import ZenohSettings, settings_or_exit
+from zensim.common.settings import CommonSettings, settings_or_exit
 from zensim.common.wire import payload_of
 from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, decode_scalar
 
@@ -43,19 +43,14 @@ INFO_RETRY_S = 1.0
 PROGRESS_PERIOD_S = 0.5
 
 
-class RecordSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class RecordSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim record`."""
 
+    env_prefix: ClassVar[str] = "RECORD"
     output: str = "zensim.mcap"
     """MCAP file to write (-o)."""
-    robot_id: str = "g1"
-    """Robot id whose keys (zensim/{robot}/**) are recorded."""
-    duration_s: float = 0.0
+    duration_s: Annotated[float, msgspec.Meta(ge=0)] = 0.0
     """Stop after this many wall seconds; 0 records until Ctrl-C or SIGTERM."""
-    log_level: str = "INFO"
-    """Python log level."""
-    zenoh: ZenohSettings = ZenohSettings()
-    """Zenoh session settings."""
 
 
 class Recorder:

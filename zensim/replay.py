@@ -17,13 +17,14 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from typing import Annotated, ClassVar
 
 import msgspec
 import zenoh
 
 from zensim.common.entry import fail, serve
 from zensim.common.logs import setup_logging
-from zensim.common.settings import ZenohSettings, settings_or_exit
+from zensim.common.settings import CommonSettings, settings_or_exit
 from zensim.common.wire import TypedPublisher, reply
 from zensim.schemas import Keys, Message, check_robot_id
 
@@ -36,23 +37,16 @@ REPLAYED_PREFIX = "state/"
 LIVE_SIM_CHECK_S = 1.0
 
 
-class ReplaySettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class ReplaySettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim replay FILE`."""
 
+    env_prefix: ClassVar[str] = "REPLAY"
+    robot_id: str | None = None  # type: ignore[assignment]
+    """Robot id to publish under; default: the recorded one."""
     file: str = ""
     """The MCAP file to replay (the first argument)."""
-    robot_id: str | None = None
-    """Robot id to publish under; default: the recorded one."""
-    rate: float = 1.0
+    rate: Annotated[float, msgspec.Meta(ge=0, le=1000)] = 1.0
     """Playback speed: 1 is the recorded pace, 2 twice as fast, 0 as fast as possible."""
-    log_level: str = "INFO"
-    """Python log level."""
-    zenoh: ZenohSettings = ZenohSettings()
-    """Zenoh session settings."""
-
-    def __post_init__(self) -> None:
-        if self.rate < 0:
-            raise ValueError("`rate` must be >= 0")
 
 
 def leading_file_argument(argv: Sequence[str], flag: str = "--file") -> list[str]:

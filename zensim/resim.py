@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Sequence
+from typing import ClassVar
 from dataclasses import dataclass, field
 
 import mujoco
@@ -42,6 +43,7 @@ TIME_MATCH_S = 1e-9
 class ResimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim resim FILE`."""
 
+    env_prefix: ClassVar[str] = "RESIM"
     file: str = ""
     """The MCAP file to re-simulate (the first argument)."""
     robot: str = "unitree_g1"

@@ -22,14 +22,14 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Sequence
-from typing import Annotated
+from typing import Annotated, ClassVar
 
 import msgspec
 import zenoh
 
 from zensim.common.logs import setup_logging
 from zensim.common.entry import serve
-from zensim.common.settings import ZenohSettings, settings_or_exit
+from zensim.common.settings import CommonSettings, ZenohSettings, settings_or_exit
 from zensim.schemas import ROOT, Keys
 
 logger = logging.getLogger("zensim.router")
@@ -37,13 +37,10 @@ logger = logging.getLogger("zensim.router")
 PROG = "zensim router"
 
 
-class RouterSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class RouterSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim router`."""
 
-    robot_id: str = "g1"
-    """Robot id whose `alive/router` token this router declares."""
-    log_level: str = "INFO"
-    """Python log level."""
+    env_prefix: ClassVar[str] = "ROUTER"
     zenoh: ZenohSettings = ZenohSettings(mode="router", listen=("tcp/127.0.0.1:7447",))
     """Zenoh settings; mode is forced to router. Listen on tcp/0.0.0.0:7447 to accept other hosts."""
     cmd_rate_limit_hz: Annotated[float, msgspec.Meta(ge=0, le=1_000_000)] = 0.0

@@ -4,8 +4,9 @@ The same four services as compose.yaml, wired the same way: a router listens
 on one endpoint and the others join it as clients with multicast scouting off.
 Ctrl-C (or SIGTERM) stops them all, newest first, and waits for each; if any
 service dies on its own, the rest are stopped too and the exit code says so.
-Extra `ZENSIM_*` variables in the environment reach every service (e.g.
-`ZENSIM_MODE=fixed zensim up`).
+Each service gets only its own `ZENSIM_*` variables: the shared ones
+(`ZENSIM_ROBOT_ID`, `ZENSIM_LOG_LEVEL`, `ZENSIM_ZENOH_*`) and those with its
+prefix (`ZENSIM_SIM_MODE=fixed ZENSIM_BRIDGE_RATE_HZ=500 zensim up`).
 """
 
 from __future__ import annotations
@@ -16,12 +17,13 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import ClassVar
 
 import msgspec
 
 from zensim.common.logs import setup_logging
-from zensim.common.settings import describe, settings_or_exit
+from zensim.common.settings import AMBIGUOUS_LEGACY, ENV_PREFIX, describe, env_names, settings_or_exit
 from zensim.common.shutdown import stop_on_signals
 from zensim.schemas.keys import SERVICES
 
@@ -33,6 +35,8 @@ STOP_TIMEOUT_S = 10.0
 class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim up`."""
 
+    env_prefix: ClassVar[str] = "UP"
+
     router_endpoint: str = "tcp/127.0.0.1:7447"
     """Where the router listens and the other services connect."""
     viz: bool = True
@@ -41,8 +45,34 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """Python log level of `zensim up` itself (the services follow ZENSIM_LOG_LEVEL)."""
 
 
-def service_env(name: str, endpoint: str) -> dict[str, str]:
-    env = dict(os.environ, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
+def settings_of(name: str) -> type[msgspec.Struct]:
+    """The settings struct of a service `zensim up` runs (imported here: each is light, no mujoco)."""
+    if name == "router":
+        from zensim.router import RouterSettings
+
+        return RouterSettings
+    if name == "sim":
+        from zensim.sim.settings import SimSettings
+
+        return SimSettings
+    if name == "bridge":
+        from zensim.bridge.settings import BridgeSettings
+
+        return BridgeSettings
+    from zensim.viz.settings import VizSettings
+
+    return VizSettings
+
+
+def service_env(name: str, endpoint: str, environ: Mapping[str, str]) -> dict[str, str]:
+    """The environment of one service: no `ZENSIM_*` variable but its own, and the way to the router.
+
+    A service never sees another service's variables, so `ZENSIM_BRIDGE_RATE_HZ` cannot reach the viz.
+    """
+    own = env_names(settings_of(name))
+    readable = set(own) | {legacy for legacy in own.values() if legacy}
+    env = {key: value for key, value in environ.items() if not key.startswith(ENV_PREFIX) or key in readable}
+    env.update(ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
     if name == "router":
         env.update(ZENSIM_ZENOH_MODE="router", ZENSIM_ZENOH_LISTEN=endpoint)
         env.pop("ZENSIM_ZENOH_CONNECT", None)
@@ -54,6 +84,12 @@ def service_env(name: str, endpoint: str) -> dict[str, str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(UpSettings, argv, "zensim up")
+    ambiguous = sorted(name for name in AMBIGUOUS_LEGACY if os.environ.get(name))
+    if ambiguous:
+        new = "; ".join(f"{name}: use {' or '.join(AMBIGUOUS_LEGACY[name])}" for name in ambiguous)
+        print(f"zensim up: no longer accepted, several services read it with different meanings: {new}",
+              file=sys.stderr)
+        return 2
     setup_logging(settings.log_level)
     logger.info("starting: %s", describe(settings))
     # Start the children before anything opens a zenoh session (fork after zenoh.open hangs).
@@ -64,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Own process group: a terminal's Ctrl-C reaches only us, and we stop the children in order.
         procs[name] = subprocess.Popen(
             [sys.executable, "-m", "zensim", name],
-            env=service_env(name, settings.router_endpoint),
+            env=service_env(name, settings.router_endpoint, os.environ),
             start_new_session=True,
         )
         logger.info("started %s (pid %d)", name, procs[name].pid)

@@ -2,24 +2,19 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, ClassVar
 
 import msgspec
 
-from zensim.common.settings import ZenohSettings
+from zensim.common.settings import CommonSettings
 
 MAX_RATE_HZ = 1000.0
 
 
-class BridgeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class BridgeSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim bridge`: joint targets in, motor commands out."""
 
-    robot_id: str = "g1"
-    """Robot id: the `{robot}` chunk of every key (zensim/{robot}/...)."""
-    log_level: str = "INFO"
-    """Python log level (DEBUG, INFO, WARNING, ERROR); zenoh's own logs follow RUST_LOG."""
-    zenoh: ZenohSettings = ZenohSettings()
-    """Zenoh session settings."""
+    env_prefix: ClassVar[str] = "BRIDGE"
     rate_hz: Annotated[float, msgspec.Meta(ge=1, le=MAX_RATE_HZ)] = 100.0
     """Rate of MotorCommand on cmd/motors, Hz (1 to 1000)."""
     targets_rate_hz: Annotated[float, msgspec.Meta(ge=0, le=MAX_RATE_HZ)] = 30.0

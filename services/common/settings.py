@@ -5,6 +5,17 @@ source of truth: the environment variable names, the `--flags` and their help
 text are all generated from it. Nested structs (the shared `ZenohSettings`)
 are flattened with their field name as prefix: `zenoh.mode` is
 `ZENSIM_ZENOH_MODE` and `--zenoh-mode`.
+
+What every service shares (`CommonSettings`: robot id, log level, Zenoh) keeps
+one name for all, `ZENSIM_ROBOT_ID`. A service's own fields carry its prefix
+(`env_prefix`): the sim's `rtf` is `ZENSIM_SIM_RTF`, the bridge's `rate_hz`
+`ZENSIM_BRIDGE_RATE_HZ`, so no variable means two things and `zensim up` can
+hand each service only its own. The flags stay short (`--rtf`): a command
+line names its service already.
+
+The unprefixed names of the first release (`ZENSIM_RTF`) still work for one
+release, with a warning, except those that two services read with different
+meanings (`AMBIGUOUS_LEGACY`), which are refused with the new names.
 """
 
 from __future__ import annotations
@@ -16,7 +27,7 @@ import os
 import re
 import sys
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal, TypeVar
+from typing import Any, ClassVar, Literal, TypeVar
 
 import msgspec
 
@@ -83,7 +94,10 @@ class ZenohSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
 
 
 class CommonSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """Settings every service has."""
+    """Settings every service has; their variables carry no service prefix."""
+
+    env_prefix: ClassVar[str] = ""
+    """The service's prefix for its own fields' variables (`SIM` -> `ZENSIM_SIM_*`)."""
 
     robot_id: str = "g1"
     """Robot id: the `{robot}` chunk of every key (zensim/{robot}/...)."""
@@ -91,6 +105,37 @@ class CommonSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
     """Python log level (DEBUG, INFO, WARNING, ERROR); zenoh's own logs follow RUST_LOG."""
     zenoh: ZenohSettings = ZenohSettings()
     """Zenoh session settings."""
+
+
+SHARED_FIELDS = frozenset(field.name for field in msgspec.structs.fields(CommonSettings))
+"""Top-level fields whose variables every service shares: ZENSIM_ROBOT_ID, ZENSIM_LOG_LEVEL, ZENSIM_ZENOH_*."""
+
+AMBIGUOUS_LEGACY: dict[str, tuple[str, ...]] = {
+    "ZENSIM_RATE_HZ": ("ZENSIM_BRIDGE_RATE_HZ", "ZENSIM_VIZ_RATE_HZ"),
+    "ZENSIM_URDF": ("ZENSIM_SIM_URDF", "ZENSIM_BRIDGE_URDF", "ZENSIM_VIZ_URDF"),
+    "ZENSIM_ROBOT": ("ZENSIM_SIM_ROBOT", "ZENSIM_BRIDGE_ROBOT"),
+    "ZENSIM_CONTROL": ("ZENSIM_SIM_CONTROL", "ZENSIM_BRIDGE_CONTROL"),
+}
+"""First-release names that several services read with different meanings: refused, naming the new ones
+(`ZENSIM_RATE_HZ=500 zensim up` meant the bridge's rate and stopped the viz, whose limit is 240)."""
+
+
+def env_names(cls: type[msgspec.Struct]) -> dict[str, str | None]:
+    """Every variable `cls` reads: {variable: its first-release name, or None when it has none}."""
+    return {env: legacy for _, _, _, _, env, legacy in _fields_with_env(cls)}
+
+
+def _fields_with_env(cls: type[msgspec.Struct]) -> list[tuple[str, tuple[str, ...], Any, str, str, str | None]]:
+    """(flat name, path, type, help, variable, first-release variable or None) for every leaf field."""
+    prefix = getattr(cls, "env_prefix", "")
+    out = []
+    for name, path, typ, doc in _flat_fields(cls):
+        legacy = ENV_PREFIX + name.upper()
+        if path[0] in SHARED_FIELDS or not prefix:
+            out.append((name, path, typ, doc, legacy, None))
+        else:
+            out.append((name, path, typ, doc, f"{ENV_PREFIX}{prefix}_{name.upper()}", legacy))
+    return out
 
 
 def _flat_fields(cls: type[msgspec.Struct], prefix: str = "") -> list[tuple[str, tuple[str, ...], Any, str]]:
@@ -136,10 +181,9 @@ def load_settings(
         SystemExit: from argparse, on --help or an unknown flag.
     """
     env = os.environ if env is None else env
-    fields = _flat_fields(cls)
+    fields = _fields_with_env(cls)
     parser = argparse.ArgumentParser(prog=prog, description=(cls.__doc__ or "").strip())
-    for name, _, typ, doc in fields:
-        env_name = ENV_PREFIX + name.upper()
+    for name, _, typ, doc, env_name, _ in fields:
         parser.add_argument(
             "--" + name.replace("_", "-"),
             dest=name,
@@ -151,28 +195,38 @@ def load_settings(
     # Start from the defaults of `cls` itself, so a nested default (the
     # router's listen endpoint) survives when only a sibling field is set.
     tree: dict = msgspec.to_builtins(cls())
-    for name, path, typ, _ in fields:
+    for name, path, typ, _, env_name, legacy in fields:
         raw = getattr(args, name)
         if raw is None:
-            raw = env.get(ENV_PREFIX + name.upper()) or None
+            raw = env.get(env_name) or _legacy_value(env, env_name, legacy)
         if raw is not None:
             _set_path(tree, path, _raw_value(raw, typ))
     try:
         settings = msgspec.convert(tree, cls, strict=False)
     except msgspec.ValidationError as exc:
-        raise SettingsError(f"bad setting: {_flag_names(str(exc))}") from None
-    for name, path, _, _ in fields:
+        raise SettingsError(f"bad setting: {_flag_names(str(exc), {f[0]: f[4] for f in fields})}") from None
+    for name, path, _, _, env_name, _ in fields:
         value: Any = settings
         for part in path:
             value = getattr(value, part)
         values = value if isinstance(value, tuple) else (value,)
         if any(isinstance(v, float) and not math.isfinite(v) for v in values):
-            raise SettingsError(f"bad setting: {value} is not a finite number - "
-                                f"--{name.replace('_', '-')} / {ENV_PREFIX}{name.upper()}")
+            raise SettingsError(f"bad setting: {value} is not a finite number - --{name.replace('_', '-')} / {env_name}")
     return settings
 
 
-def _flag_names(message: str) -> str:
+def _legacy_value(env: Mapping[str, str], env_name: str, legacy: str | None) -> str | None:
+    """The value of a first-release variable name: refused when ambiguous, else used with a warning."""
+    if legacy is None or not env.get(legacy):
+        return None
+    if legacy in AMBIGUOUS_LEGACY:
+        raise SettingsError(f"{legacy} is read by several services with different meanings and is no longer "
+                            f"accepted: use {' or '.join(AMBIGUOUS_LEGACY[legacy])}")
+    logger.warning("%s is deprecated and goes away in the next release: use %s", legacy, env_name)
+    return env[legacy]
+
+
+def _flag_names(message: str, env_names_by_flat: Mapping[str, str]) -> str:
     """Turn msgspec's `$.zenoh.mode` paths into the flag a user typed."""
     if "$." not in message:
         return message
@@ -181,7 +235,7 @@ def _flag_names(message: str) -> str:
     head, path = message.rsplit("$.", 1)
     name = path.rstrip("`").replace(".", "_")
     head = head.rstrip("`")
-    return f"{head}--{name.replace('_', '-')} / {ENV_PREFIX}{name.upper()}"
+    return f"{head}--{name.replace('_', '-')} / {env_names_by_flat.get(name, ENV_PREFIX + name.upper())}"
 
 
 def describe(settings: msgspec.Struct) -> str:
@@ -203,12 +257,12 @@ def settings_table(cls: type[msgspec.Struct]) -> str:
     """A Markdown table of every setting: variable, flag, default, meaning (for the service READMEs)."""
     defaults = msgspec.to_builtins(cls())
     rows = ["| environment | flag | default | meaning |", "|---|---|---|---|"]
-    for name, path, _, doc in _flat_fields(cls):
+    for name, path, _, doc, env_name, _ in _fields_with_env(cls):
         value: Any = defaults
         for part in path:
             value = value.get(part) if isinstance(value, dict) else None
         shown = ",".join(map(str, value)) if isinstance(value, (list, tuple)) else ("" if value is None else str(value).lower() if isinstance(value, bool) else value)
-        rows.append(f"| `{ENV_PREFIX}{name.upper()}` | `--{name.replace('_', '-')}` | `{shown}` | {doc} |")
+        rows.append(f"| `{env_name}` | `--{name.replace('_', '-')}` | `{shown}` | {doc} |")
     return "\n".join(rows) + "\n"
 
 

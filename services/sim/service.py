@@ -484,8 +484,8 @@ def load_simulation(settings: SimSettings) -> Simulation:
             timestep_s=settings.timestep_s,
         )
     except (OSError, ValueError) as exc:
-        which = "--urdf / ZENSIM_URDF" if settings.urdf else "--robot / ZENSIM_ROBOT"
-        raise StartupError(f"cannot load the robot ({which}, --control / ZENSIM_CONTROL): {bounded(str(exc), 400)}") from None
+        which = "--urdf / ZENSIM_SIM_URDF" if settings.urdf else "--robot / ZENSIM_SIM_ROBOT"
+        raise StartupError(f"cannot load the robot ({which}, --control / ZENSIM_SIM_CONTROL): {bounded(str(exc), 400)}") from None
     logger.info("robot %s: %d joints, mode %s, step %.4f s", sim.robot.name, sim.robot.nu, sim.mode, sim.timestep_s)
     return sim
 

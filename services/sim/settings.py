@@ -2,19 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
-from zensim.common.settings import ZenohSettings
+from zensim.common.settings import CommonSettings
 from zensim.schemas.messages import Mode
 
 
-class SimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class SimSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim sim`: the MuJoCo physics service."""
 
-    robot_id: str = "g1"
-    """Robot id: the `{robot}` chunk of every key (zensim/{robot}/...)."""
+    env_prefix: ClassVar[str] = "SIM"
     robot: str = "unitree_g1"
     """Bundled robot to simulate (unitree_g1, alias g1); ignored when --urdf is given."""
     urdf: str | None = None
@@ -49,7 +48,3 @@ class SimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     """realtime (paced by rtf) or lockstep (each motor command advances lockstep_steps, then time stands still)."""
     lockstep_steps: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 10
     """Lockstep: physics steps each motor command advances (10 = 20 ms at the G1's 2 ms step)."""
-    log_level: str = "INFO"
-    """Python log level."""
-    zenoh: ZenohSettings = ZenohSettings()
-    """Zenoh session settings."""

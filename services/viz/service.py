@@ -35,7 +35,7 @@ import zenoh
 
 from zensim.common.logs import RateLimitedLog
 from zensim.common.session import StartupError
-from zensim.common.wire import TypedPublisher, decode_input, error_text, payload_of
+from zensim.common.wire import TypedPublisher, decode_input, error_text
 from zensim.schemas import (
     Codec,
     CtlReply,
@@ -385,7 +385,7 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
     except OSError as exc:
         service.close()
         raise StartupError(f"cannot serve the page on {settings.host}:{settings.port} "
-                           f"(--host / ZENSIM_HOST, --port / ZENSIM_PORT): {exc.strerror or exc}") from None
+                           f"(--host / ZENSIM_VIZ_HOST, --port / ZENSIM_VIZ_PORT): {exc.strerror or exc}") from None
     server.add_sockets(sockets)
     port = sockets[0].getsockname()[1]
     logger.info("viz up: http://%s:%d/", settings.host, port)

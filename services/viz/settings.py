@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, ClassVar
 
 import msgspec
 
@@ -11,6 +11,8 @@ from zensim.common.settings import CommonSettings
 
 class VizSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings of `zensim viz`: the web viewer with joint sliders."""
+
+    env_prefix: ClassVar[str] = "VIZ"
 
     host: str = "127.0.0.1"
     """Address the web page is served on; 0.0.0.0 serves every interface (as in a container)."""
