@@ -13,9 +13,9 @@ A command is stepped right on the zenoh callback thread that received it, under 
 that the loop thread also holds while it runs ctl requests (reset, pause, step): a step never
 interleaves with a reset, and no thread hand-off sits in the controller's round trip. A ctl/advance
 query is answered before the states go out to everyone else (the asking client waits; the others
-only listen). Zenoh runs one subscriber's callbacks one after the other, so commands on cmd/motors
-are stepped in arrival order; a client that sends faster than the physics runs is pushed back by
-zenoh's own queue. The loop never steps on its own: no pacing, no watchdog (the watchdog measures
+only listen). Commands on cmd/motors come through the sim's command ring, drained by one thread,
+so they are stepped in arrival order; a client that floods faster than the physics runs loses the
+oldest ones in the ring (a ctl/advance round trip never loses a step). The loop never steps on its own: no pacing, no watchdog (the watchdog measures
 wall time, and between two commands of a lockstep client no sim time passes). From the same reset
 and the same commands the states are bit-identical (MuJoCo is deterministic on one machine and
 build; the commands are the only input).
