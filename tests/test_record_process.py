@@ -195,3 +195,16 @@ class TestReplay:
         wait_for(moved, 40, "the replayed robot's hand moving on the page", interval_s=0.3)
         assert replayed.value is not None and replay.alive(), replay.log()
         assert "sim" in browser.eval("zensim.status.alive")
+
+
+def test_bad_files_get_one_line_and_exit_code_2(tmp_path) -> None:
+    not_mcap = tmp_path / "notes.mcap"
+    not_mcap.write_text("root:x:0:0\n")
+    truncated = tmp_path / "cut.mcap"
+    truncated.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 40)
+    for args in (("resim", str(not_mcap)), ("replay", str(not_mcap)), ("resim", str(truncated)),
+                 ("resim", str(tmp_path / "missing.mcap")), ("replay",), ("record", "-o", str(tmp_path / "no/such/dir.mcap"))):
+        result = zensim(*args, timeout_s=30)
+        assert result.returncode == 2, (args, result.stdout, result.stderr)
+        assert "Traceback" not in result.stderr, (args, result.stderr)
+        assert result.stderr.strip().splitlines()[-1].startswith(f"zensim {args[0]}: "), (args, result.stderr)
