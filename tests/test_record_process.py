@@ -17,7 +17,7 @@ import pytest
 from mcap.reader import make_reader
 
 from browser import Browser, chromium_binary
-from support import Latest, Service, free_port, wait_for
+from support import Latest, Service, ctl, free_port, wait_for
 from test_lockstep_process import advance, scripted_command
 from test_sim_process import put_json, robot_info, wait_alive
 from zensim.schemas import JointState, Keys
@@ -110,9 +110,16 @@ class TestRecord:
         while time.monotonic() < deadline:
             put_json(zsession, keys.motors, {"names": ["left_elbow_joint"], "q": [0.8]})
             time.sleep(0.02)
+        # A mode switch: the recorder saves the new description too; resim stops where the mode changed.
+        assert ctl(zsession, keys.ctl("mode"), {"mode": "floating"})["mode"] == "floating"
+        wait_for(lambda: recorder.log().count("saved the sim's description") == 2, 20, "the second description saved")
         stop_recorder(recorder)
+        with path.open("rb") as stream:
+            modes = [json.loads(a.data)["mode"] for a in make_reader(stream).iter_attachments() if a.name == "info/robot"]
+        assert modes == ["fixed", "floating"]
         result = zensim("resim", str(path))
         assert result.returncode == 0, result.stderr
+        assert "switched to floating mode" in result.stdout, result.stdout
         assert "real-time recording" in result.stdout and "measures how much the run depended" in result.stdout
         joint = float(result.stdout.split("joint position ")[1].split(" rad")[0])
         compared = int(result.stdout.split(" states compared")[0].rsplit(", ", 1)[1])

@@ -8,7 +8,8 @@ one (`sim_time_s`), else the log time. `cmd/joint/{joint}` carries a bare number
 file it is `{"value": x}`, since JSON readers of MCAP expect objects.
 
 The sim's description is saved with the data: attachment `info/robot` (RobotInfo as JSON) and
-`info/urdf` (the URDF text), plus a metadata record `zensim` (robot id, format version).
+`info/urdf` (the URDF text), again after a sim restart or mode switch (readers here use the first),
+plus a metadata record `zensim` (robot id, format version).
 
 No zenoh here: `zensim resim` reads files without a network.
 """
@@ -153,7 +154,9 @@ def read_recording(path: str | Path) -> Recording:
         try:
             reader = make_reader(stream)
             metadata = {m.name: m.metadata for m in reader.iter_metadata()}
-            attachments = {a.name: a.data for a in reader.iter_attachments()}
+            attachments: dict[str, bytes] = {}
+            for attachment in reader.iter_attachments():  # the first of each: the sim as the recording began
+                attachments.setdefault(attachment.name, attachment.data)
             raw = [(channel.topic, message.log_time, message.data)
                    for _schema, channel, message in reader.iter_messages(log_time_order=True)]
         except Exception as exc:  # the mcap package raises its own and struct/zstd errors for a bad file

@@ -28,7 +28,7 @@ from zensim.common.entry import fail, serve
 from zensim.common.logs import RateLimitedLog, setup_logging
 from zensim.common.settings import CommonSettings, settings_or_exit
 from zensim.common.wire import payload_of
-from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, decode_scalar
+from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, SimStatus, decode_scalar
 
 from .mcapfile import ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter, message_type_of, split_key
 
@@ -68,6 +68,9 @@ class Recorder:
         self.skipped = 0
         self.bad_input = RateLimitedLog(logger)
         self._codecs: dict[type, Codec] = {}
+        self._description_wanted = threading.Event()
+        self._description_wanted.set()
+        self._described: tuple[str, str] | None = None
         self._subscriber = session.declare_subscriber(self.keys.everything, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -80,20 +83,29 @@ class Recorder:
             self.bad_input.warning("the writer is behind by %d samples: dropping", MAX_QUEUED)
 
     def fetch_description(self, stop: threading.Event) -> None:
-        """Helper thread: get info/robot and info/urdf once the sim answers, hand them to the writer."""
+        """Helper thread: get info/robot and info/urdf when the sim answers, and again after it restarted or
+        switched mode (SimStatus says so), and hand them to the writer. Readers use the first pair."""
         while not stop.is_set():
+            if not self._description_wanted.wait(0.2):
+                continue
             try:
                 info = self._get(self.keys.robot_info + "?format=json")
-                msgspec.json.decode(info, type=RobotInfo)  # only a valid description is saved
+                described = msgspec.json.decode(info, type=RobotInfo)  # only a valid description is saved
                 urdf = self._get(self.keys.urdf)
             except (TimeoutError, ValueError, zenoh.ZError, msgspec.DecodeError, msgspec.ValidationError) as exc:
                 logger.debug("no description yet: %s", exc)
                 stop.wait(INFO_RETRY_S)
                 continue
+            self._description_wanted.clear()
+            self._described = (described.run_id, described.mode)
             self.attachments.put((ROBOT_INFO_ATTACHMENT, "application/json", info))
             self.attachments.put((URDF_ATTACHMENT, "application/xml", urdf))
-            logger.info("saved the sim's description (info/robot, info/urdf)")
-            return
+            logger.info("saved the sim's description (info/robot, info/urdf; run %s, mode %s)", *self._described)
+
+    def _watch_sim(self, status: SimStatus) -> None:
+        """A restarted sim (new run_id) or a mode switch: describe it again."""
+        if self._described is not None and (status.run_id, status.mode) != self._described:
+            self._description_wanted.set()
 
     def _get(self, key: str) -> bytes:
         for reply in self.session.get(key, timeout=2.0):
@@ -136,6 +148,8 @@ class Recorder:
                 codec = self._codecs.setdefault(message_type, Codec(message_type))
                 message = codec.decode(data, encoding)
                 json_data = codec.encode(message, "json")
+                if isinstance(message, SimStatus):
+                    self._watch_sim(message)
                 sim_time_s = getattr(message, "sim_time_s", None)
                 if isinstance(sim_time_s, float) and 0 <= sim_time_s < 1e9:
                     publish_ns = round(sim_time_s * 1e9)

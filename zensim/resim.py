@@ -216,6 +216,17 @@ def resim_realtime(sim: Simulation, recording: Recording) -> Divergence:
     return result
 
 
+def until_mode_change(recording: Recording) -> str | None:
+    """Keep only the part of the recording in the recorded mode: the model is rebuilt at a mode switch
+    (and a restarted sim may come up in another). Returns what was cut, or None."""
+    info = recording.robot_info
+    for i, item in enumerate(recording.messages):
+        if item.relative_key == "state/sim" and info is not None and item.message.mode != info.mode:
+            recording.messages = recording.messages[:i]
+            return f"the sim switched to {item.message.mode} mode at t = {item.message.sim_time_s:.3f} s: re-simulated up to there"
+    return None
+
+
 def build_sim(settings: ResimSettings, recording: Recording) -> Simulation:
     info = recording.robot_info
     if info is None:
@@ -242,6 +253,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"zensim resim: {exc}", file=sys.stderr)
         return 2
+    cut = until_mode_change(recording)
     applied = recording.of("state/applied")
     if applied:
         kind = "lockstep"
@@ -264,6 +276,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("real-time: commands were applied at the last state recorded before they arrived (up to one state "
               "period off the step the sim used), so this measures how much the run depended on network and "
               "load timing, not an error in the physics.")
+    if cut:
+        print(f"note: {cut}")
     if result.skipped:
         print(f"note: {result.skipped} commands skipped: no recorded state at their start time (samples lost)")
     for note in result.notes[:10]:
