@@ -26,6 +26,7 @@ import numpy as np
 from zensim.robots import RobotFiles
 from zensim.schemas.messages import Mode
 from zensim.robots.control import DEFAULT_ARMATURE_KG_M2, ControlConfig, ModeConfig, first_match, load_control
+from zensim.robots.mesh_files import mesh_refusal
 
 logger = logging.getLogger(__name__)
 
@@ -187,10 +188,14 @@ def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
     """Find a URDF mesh file relative to the URDF's own folder (never the working directory).
 
     Handles plain relative paths, `package://<pkg>/...` (the URDF's folder is taken as the package
-    root, as in a g1_description checkout) and `file://`.
+    root, as in a g1_description checkout) and `file://`. The sim serves what this returns to any
+    client, so the file must be a mesh type (`mesh_files.MESH_SUFFIXES`) inside the description's own folder tree
+    (`mesh_files.mesh_roots`), symlinks followed: `../../etc/passwd`, `file:///etc/hostname` or a link out of the
+    folder fail here, at load.
 
     Raises:
         FileNotFoundError: No candidate exists; the message lists where it looked.
+        RobotModelError: The file is outside the description's folders or not a mesh type.
     """
     candidates: list[Path] = []
     if filename.startswith("package://"):
@@ -204,8 +209,15 @@ def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
     candidates += [urdf_dir / "meshes" / Path(filename).name, urdf_dir / Path(filename).name]
     for candidate in candidates:
         if candidate.is_file():
-            return candidate.resolve()
+            return _bounded_mesh(filename, candidate.resolve(), urdf_dir)
     raise FileNotFoundError(f"mesh {filename!r} not found; looked at {[str(c) for c in candidates]}")
+
+
+def _bounded_mesh(filename: str, path: Path, urdf_dir: Path) -> Path:
+    refusal = mesh_refusal(filename, path, urdf_dir)
+    if refusal is not None:
+        raise RobotModelError(refusal)
+    return path
 
 
 # ------------------------------------------------------------------------------------- resolution

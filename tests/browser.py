@@ -54,9 +54,10 @@ class Browser:
     Args:
         width: window width, px.
         height: window height, px.
+        extra_flags: more chromium flags (e.g. --host-resolver-rules to play a DNS-rebinding name).
     """
 
-    def __init__(self, width: int = 1280, height: int = 800) -> None:
+    def __init__(self, width: int = 1280, height: int = 800, extra_flags: tuple[str, ...] = ()) -> None:
         binary = chromium_binary()
         if binary is None:
             raise BrowserError("chromium is not installed (apt-get install chromium)")
@@ -65,7 +66,7 @@ class Browser:
         self._log = self.log_path.open("wb")
         self.proc = subprocess.Popen(
             [binary, *CHROMIUM_FLAGS, f"--user-data-dir={self.profile}", f"--window-size={width},{height}",
-             "about:blank"],
+             *extra_flags, "about:blank"],
             stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True,
         )
         self._loop = asyncio.new_event_loop()

@@ -91,15 +91,17 @@ def free_ports(n: int) -> list[int]:
 
 
 class ComposeStack:
-    """One compose project (`-p name`) of compose.yaml, with its own env (ports, image, base)."""
+    """One compose project (`-p name`) of compose.yaml (plus override `files`), with its own env (ports, image, base)."""
 
-    def __init__(self, compose: list[str], project: str, env: dict[str, str]) -> None:
+    def __init__(self, compose: list[str], project: str, env: dict[str, str],
+                 files: tuple[str, ...] = ("compose.yaml",)) -> None:
         self.compose = compose
         self.project = project
         self.env = {**os.environ, **env}
+        self.files = [arg for name in files for arg in ("-f", str(REPO / name))]
 
     def run(self, *args: str, timeout_s: float = 120, check: bool = True) -> subprocess.CompletedProcess[str]:
-        return run([*self.compose, "-f", str(REPO / "compose.yaml"), "-p", self.project, *args],
+        return run([*self.compose, *self.files, "-p", self.project, *args],
                    env=self.env, timeout_s=timeout_s, check=check)
 
     def containers(self, all_states: bool = True) -> list[str]:

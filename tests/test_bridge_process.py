@@ -307,3 +307,15 @@ def test_a_restarted_sim_is_learned_again_even_with_another_robot(fixed_rig: Rig
     later = rig.status.latest()
     assert later is not None and not later.watchdog
     assert later.rejected_commands == first.rejected_commands, later.last_error
+
+
+def test_gains_are_left_to_the_sim_unless_the_bridge_was_given_its_own(fixed_rig: Rig) -> None:
+    rig = fixed_rig
+    bridge = rig.start_bridge()
+    commands = rig.motors_after(5)
+    assert all(c.kp is None and c.kd is None for c in commands), "the bridge sent the sim's own gains back"
+    # With local robot files the gains are the user's (control.toml), so they are sent.
+    bridge.stop()
+    rig.start_bridge("--robot", "g1")
+    later = rig.motors_after(5)[-1]
+    assert later.kp is not None and len(later.kp) == len(rig.info.joint_names)

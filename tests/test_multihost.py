@@ -39,6 +39,8 @@ from support import REPO, wait_for
 HOSTS = ("router", "sim", "bridge", "viz", "client")
 ZENOH_PORT = 7447
 VIZ_PORT = 7000
+VIZ_TOKEN = "multihost-test-token"
+"""The viz serves beyond loopback here, so it requires a token (docs/security.md); the test sets it."""
 JOINT = "left_elbow_joint"
 CUT_S = 3.0
 """How long the sim's link is down: well under zenoh's 10 s lease, so the sessions stall, not close."""
@@ -154,7 +156,7 @@ class Deployment:
         # Clients wait for their router (connect timeout -1), so they need not wait for it here.
         start("sim", ["--mode", "fixed", "--rtf", "1"], client)
         start("bridge", [], client)
-        start("viz", [], dict(client, ZENSIM_VIZ_HOST="0.0.0.0", ZENSIM_VIZ_PORT=str(VIZ_PORT)))
+        start("viz", [], dict(client, ZENSIM_VIZ_HOST="0.0.0.0", ZENSIM_VIZ_PORT=str(VIZ_PORT), ZENSIM_VIZ_TOKEN=VIZ_TOKEN))
         self.probe = Probe(net, client, log_dir, self.router_endpoint, self.robot_id)
 
     @property
@@ -243,10 +245,11 @@ def test_commands_and_states_flow_between_hosts(deployment: Deployment) -> None:
     for target in (0.6, -0.2):
         put_target(probe, dep.robot_id, target)
         wait_for(lambda: tracks(probe, index, target), 10, f"{JOINT} at {target} (client -> bridge -> sim)")
-    page = probe.request("http", url=dep.viz_url)
+    assert probe.request("http", url=dep.viz_url).get("status") == 403  # served beyond loopback: token needed
+    page = probe.request("http", url=f"{dep.viz_url}?token={VIZ_TOKEN}")  # then the cookie, after a redirect
     assert page.get("status") == 200 and page.get("bytes", 0) > 0, page
     # The viz host gets states too: its page's websocket reports the newest state seq it holds.
-    probe.request("ws", url=dep.viz_url.replace("http://", "ws://") + "ws")
+    probe.request("ws", url=dep.viz_url.replace("http://", "ws://") + f"ws?token={VIZ_TOKEN}")
     wait_for(lambda: any(s.get("state_seq") for _, s in probe.viz_after(0)), 20, "states at the viz host")
     # And commands flow from the viz's sliders (its websocket) through the bridge to the sim.
     probe.request("ws_send", message={"type": "targets", "names": [JOINT], "q": [0.3]})
@@ -419,8 +422,12 @@ def probe_main(connect: str, robot_id: str) -> int:
                     session.put(request["key"], json.dumps(request["value"]).encode(),
                                 encoding=zenoh.Encoding("application/json"))
                 elif op == "http":
-                    with urllib.request.urlopen(request["url"], timeout=10) as response:
-                        reply.update(status=response.status, bytes=len(response.read()))
+                    opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())  # a browser's cookies
+                    try:
+                        with opener.open(request["url"], timeout=10) as response:
+                            reply.update(status=response.status, bytes=len(response.read()))
+                    except urllib.error.HTTPError as exc:
+                        reply.update(status=exc.code)
                 elif op == "ws":
                     opened = threading.Event()
                     threading.Thread(target=websocket, args=(request["url"], opened), daemon=True).start()

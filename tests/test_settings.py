@@ -35,8 +35,16 @@ def test_environment_then_flags() -> None:
 
 
 def test_nested_defaults_survive_a_sibling_setting() -> None:
-    settings = load_settings(RouterSettings, ["--zenoh-multicast-scouting", "false"], env={})
-    assert settings.zenoh.listen == ("tcp/127.0.0.1:7447",)
+    # The router's nested default (mode router, where ZenohSettings says peer) outlives a sibling flag.
+    settings = load_settings(RouterSettings, ["--zenoh-multicast-scouting", "true"], env={})
+    assert settings.zenoh.mode == "router" and settings.zenoh.multicast_scouting is True
+
+
+def test_secure_dir_is_one_setting_for_every_service() -> None:
+    """`--secure-dir` / `ZENSIM_SECURE_DIR` (no zenoh prefix) reaches the nested zenoh settings."""
+    assert load_settings(RouterSettings, ["--secure-dir", "/a"], env={}).zenoh.secure_dir == "/a"
+    assert load_settings(RouterSettings, [], env={"ZENSIM_SECURE_DIR": "/b"}).zenoh.secure_dir == "/b"
+    assert load_settings(RouterSettings, [], env={}).zenoh.multicast_scouting is False
 
 
 @pytest.mark.parametrize(

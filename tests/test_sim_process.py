@@ -66,6 +66,7 @@ class TestStreams:
         imu = Latest(zsession, keys.imu, Imu)
         status = Latest(zsession, keys.sim_status, SimStatus)
         odom.keep_history = True
+        joints.keep_history = True
         start_service("sim", "--rtf", "0", "--state-rate-hz", "100")
         odom.wait(lambda m: m.sim_time_s >= 30.0, timeout_s=120, what="30 s of sim time")
         heights = [m.pos[2] for m in odom.history if m.sim_time_s > 0.5]
@@ -76,7 +77,13 @@ class TestStreams:
         assert len(odom.history) > 0.8 * 30 * 100
         assert min(heights) > 0.65, f"the G1 sagged or fell: min pelvis z {min(heights):.3f}"
         assert max(heights) < 0.80
-        assert joints.value.seq == odom.value.seq or abs(joints.value.seq - odom.value.seq) < 5
+        # The streams are in step: a joint state and an odometry with the same seq describe the same
+        # instant. (Comparing the newest of each races the two subscriber threads at rtf 0.)
+        joint_times = {m.seq: m.sim_time_s for m in list(joints.history)}
+        odom_times = {m.seq: m.sim_time_s for m in list(odom.history)}
+        both = joint_times.keys() & odom_times.keys()
+        assert len(both) > 0.8 * 30 * 100
+        assert all(joint_times[seq] == odom_times[seq] for seq in both)
         assert len(joints.value.q) == 29
         assert imu.value.accel[2] == pytest.approx(9.81, abs=1.0)
         assert status.value.fallen is False

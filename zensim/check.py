@@ -11,7 +11,8 @@ from typing import ClassVar
 
 import msgspec
 
-from zensim.common.session import open_session
+from zensim.common.entry import fail
+from zensim.common.session import StartupError, open_session
 from zensim.common.settings import ZenohSettings, settings_or_exit
 from zensim.schemas import Keys
 
@@ -46,7 +47,11 @@ def is_alive(session, key: str, timeout_s: float) -> bool:
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(CheckSettings, argv, "zensim check")
     key = Keys(settings.robot_id).alive(settings.service)
-    with open_session(settings.zenoh) as session:
+    try:
+        session = open_session(settings.zenoh, claim_meeting_point=False)
+    except StartupError as exc:
+        return fail("zensim check", str(exc))
+    with session:
         alive = is_alive(session, key, settings.timeout_s)
     print(f"{key}: {'alive' if alive else 'not seen'}")
     return 0 if alive else 1

@@ -7,6 +7,7 @@
     zensim up       all of the above as local processes
     zensim check    exit 0 when a service is alive (for healthchecks)
     zensim robot    build or inspect a robot model
+    zensim secure   make the credentials of a secured network (secure init DIR)
     zensim record   record a robot's samples into MCAP; replay, resim: play or re-simulate one
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
@@ -30,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("zensim.up", "run router, sim, bridge and viz as local processes"),
     "check": ("zensim.check", "exit 0 when a service's liveliness token is seen"),
     "robot": ("zensim.robots.cli", "build or inspect a robot model"),
+    "secure": ("zensim.secure", "make TLS certificates, passwords and role configs (secure init DIR)"),
     "record": ("zensim.record", "record every sample of a robot into an MCAP file"),
     "replay": ("zensim.replay", "publish a recording's states again (the viewer draws the past run)"),
     "resim": ("zensim.resim", "re-simulate a recording's commands and report the divergence"),

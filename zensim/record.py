@@ -208,4 +208,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         return fail(PROG, f"cannot write {settings.output}: {exc.strerror}")
     with stream:
-        return serve(PROG, settings, lambda session, s, stop: record(session, s, stop, stream))
+        # Secured network: the operator's credentials (read everything, query info/*).
+        return serve(PROG, settings, lambda session, s, stop: record(session, s, stop, stream), role="operator")

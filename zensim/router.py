@@ -19,6 +19,7 @@ the router (docs/protocol.md, "Bounds").
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 from collections.abc import Sequence
@@ -28,11 +29,16 @@ import msgspec
 import zenoh
 
 from zensim.common.logs import setup_logging
-from zensim.common.entry import serve
+from zensim.common.entry import fail, serve
+from zensim.common.secure import SecureConfigError
+from zensim.common.session import zenoh_config
 from zensim.common.settings import CommonSettings, ZenohSettings, settings_or_exit
 from zensim.schemas import ROOT, Keys
 
 logger = logging.getLogger("zensim.router")
+ACL_AUDIT_LOG = "warn,zenoh::net::routing::interceptor::access_control=trace"
+"""RUST_LOG that makes the router log every access decision, `is unauthorized` for each denied message
+(docs/security.md): zenoh logs them only at trace level, one line per message, so it is opt-in."""
 
 PROG = "zensim router"
 
@@ -41,8 +47,9 @@ class RouterSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     """Settings of `zensim router`."""
 
     env_prefix: ClassVar[str] = "ROUTER"
-    zenoh: ZenohSettings = ZenohSettings(mode="router", listen=("tcp/127.0.0.1:7447",))
-    """Zenoh settings; mode is forced to router. Listen on tcp/0.0.0.0:7447 to accept other hosts."""
+    zenoh: ZenohSettings = ZenohSettings(mode="router")
+    """Zenoh settings; mode is forced to router. It listens on tcp/127.0.0.1:7447 (with --secure-dir: the
+    folder's tls/ endpoint) unless told; listen on tcp/0.0.0.0:7447 to accept other hosts."""
     cmd_rate_limit_hz: Annotated[float, msgspec.Meta(ge=0, le=1_000_000)] = 0.0
     """Per client link, most samples per second on zensim/*/cmd/**; 0: no limit. Zenoh drops a sample that comes sooner than 1/rate after the last one, so set it well above your controllers' rate."""
     input_size_limit_bytes: Annotated[int, msgspec.Meta(ge=0)] = 65536
@@ -74,13 +81,18 @@ def input_limits(settings: RouterSettings) -> dict[str, object]:
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(RouterSettings, argv, PROG)
     setup_logging(settings.log_level)
-    return serve(PROG, settings, _route, zenoh_settings=msgspec.structs.replace(settings.zenoh, mode="router"),
-                 extra_config=input_limits(settings))
+    zenoh_settings = msgspec.structs.replace(settings.zenoh, mode="router")
+    try:
+        listening = json.loads(zenoh_config(zenoh_settings, role="router").get_json("listen/endpoints"))
+    except SecureConfigError as exc:
+        return fail(PROG, f"cannot use the secure folder (--secure-dir / ZENSIM_SECURE_DIR): {exc}")
+    return serve(PROG, settings, lambda session, settings, stop: _route(session, settings, stop, listening),
+                 role="router", zenoh_settings=zenoh_settings, extra_config=input_limits(settings))
 
 
-def _route(session: zenoh.Session, settings: RouterSettings, stop: threading.Event) -> int:
+def _route(session: zenoh.Session, settings: RouterSettings, stop: threading.Event, listening: list[str]) -> int:
     token = session.liveliness().declare_token(Keys(settings.robot_id).alive("router"))
-    logger.info("router up, listening on %s", ", ".join(settings.zenoh.listen) or "zenoh defaults")
+    logger.info("router up, listening on %s", ", ".join(listening))
     stop.wait()
     token.undeclare()
     logger.info("router stopped")

@@ -43,6 +43,11 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """Also run the web viewer."""
     log_level: str = "INFO"
     """Python log level of `zensim up` itself (the services follow ZENSIM_LOG_LEVEL)."""
+    secure_dir: str | None = None
+    """A folder made by `zensim secure init`: the router and services use TLS, passwords and roles."""
+
+
+SECURE_ENDPOINT = "tls/127.0.0.1:7447"
 
 
 def settings_of(name: str) -> type[msgspec.Struct]:
@@ -64,7 +69,7 @@ def settings_of(name: str) -> type[msgspec.Struct]:
     return VizSettings
 
 
-def service_env(name: str, endpoint: str, environ: Mapping[str, str]) -> dict[str, str]:
+def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir: str | None = None) -> dict[str, str]:
     """The environment of one service: no `ZENSIM_*` variable but its own, and the way to the router.
 
     A service never sees another service's variables, so `ZENSIM_BRIDGE_RATE_HZ` cannot reach the viz.
@@ -73,6 +78,8 @@ def service_env(name: str, endpoint: str, environ: Mapping[str, str]) -> dict[st
     readable = set(own) | {legacy for legacy in own.values() if legacy}
     env = {key: value for key, value in environ.items() if not key.startswith(ENV_PREFIX) or key in readable}
     env.update(ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
+    if secure_dir:
+        env["ZENSIM_SECURE_DIR"] = secure_dir
     if name == "router":
         env.update(ZENSIM_ZENOH_MODE="router", ZENSIM_ZENOH_LISTEN=endpoint)
         env.pop("ZENSIM_ZENOH_CONNECT", None)
@@ -93,6 +100,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     setup_logging(settings.log_level)
     logger.info("starting: %s", describe(settings))
     # Start the children before anything opens a zenoh session (fork after zenoh.open hangs).
+    endpoint = settings.router_endpoint
+    if settings.secure_dir and endpoint == UpSettings().router_endpoint:
+        endpoint = SECURE_ENDPOINT
+    if settings.secure_dir and not endpoint.startswith("tls/"):
+        logger.error("with --secure-dir the router endpoint is tls/, not %s", endpoint)
+        return 2
     names = [name for name in SERVICES if settings.viz or name != "viz"]
     procs: dict[str, subprocess.Popen] = {}
     stop = stop_on_signals()
@@ -100,7 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Own process group: a terminal's Ctrl-C reaches only us, and we stop the children in order.
         procs[name] = subprocess.Popen(
             [sys.executable, "-m", "zensim", name],
-            env=service_env(name, settings.router_endpoint, os.environ),
+            env=service_env(name, endpoint, os.environ, settings.secure_dir),
             start_new_session=True,
         )
         logger.info("started %s (pid %d)", name, procs[name].pid)

@@ -18,7 +18,7 @@ PROG = "zensim bridge"
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(BridgeSettings, argv, PROG)
     setup_logging(settings.log_level)
-    return serve(PROG, settings, run)
+    return serve(PROG, settings, run, role="bridge")
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ Reads:
                                 `run_id` (a new one: the sim restarted -> learn the robot again)
     {robot}/info/robot          RobotInfo, queried at start and after a sim restart
 Writes:
-    {robot}/cmd/motors          MotorCommand (q, dq, kp, kd of the current mode) at rate_hz
+    {robot}/cmd/motors          MotorCommand (q, dq; kp, kd only with local robot files) at rate_hz
     {robot}/state/targets       JointTargets, every joint, the commanded q, at targets_rate_hz
     {robot}/report/bridge       BridgeReport per rejected or clamped input
     {robot}/alive/bridge        liveliness token, once the robot is known
@@ -211,7 +211,9 @@ class Bridge:
         with self._lock:
             q = tuple(self._held.step(dt_s).tolist())
             dq = tuple(self._held.target_dq.tolist())
-            kp, kd = self._gains[self._held.mode]
+            # Gains the sim already has are not sent back to it: an absent kp/kd means "the sim's
+            # configured gains". Only gains the user gave the bridge itself (--control) are sent.
+            kp, kd = self._gains[self._held.mode] if self._from_files else (None, None)
         self._motors.put(MotorCommand(q=q, dq=dq, kp=kp, kd=kd))
         if publish_targets:
             self._targets.put(JointTargets(names=self._held.joint_names, q=q))

@@ -45,7 +45,7 @@ def fail(prog: str, message: str) -> int:
     return 2
 
 
-def serve(prog: str, settings: S, run: Run, zenoh_settings: ZenohSettings | None = None,
+def serve(prog: str, settings: S, run: Run, role: str, zenoh_settings: ZenohSettings | None = None,
           extra_config: Mapping[str, object] | None = None) -> int:
     """Open the session, call `run(session, settings, stop)` until SIGINT/SIGTERM, close in bounded time.
 
@@ -53,6 +53,8 @@ def serve(prog: str, settings: S, run: Run, zenoh_settings: ZenohSettings | None
         prog: the command's name, for messages (`zensim sim`).
         settings: the service's settings, logged once.
         run: the service; returns its exit code and raises StartupError for what the user can fix.
+        role: whose credentials the session uses when the settings name a secure folder
+            (router, sim, bridge, viz, ...; docs/security.md).
         zenoh_settings: the session's settings when they differ from `settings.zenoh` (the router).
         extra_config: zenoh config paths the service sets for itself (the router's rate limits).
 
@@ -62,7 +64,7 @@ def serve(prog: str, settings: S, run: Run, zenoh_settings: ZenohSettings | None
     stop = stop_on_signals()
     logger.info("starting: %s", describe(settings))  # type: ignore[arg-type]
     try:
-        session = open_session(zenoh_settings or settings.zenoh, extra_config)
+        session = open_session(zenoh_settings or settings.zenoh, role=role, extra=extra_config)
     except StartupError as exc:
         return fail(prog, str(exc))
     try:

@@ -37,6 +37,8 @@ from zensim.schemas.keys import check_robot_id
 logger = logging.getLogger(__name__)
 
 ENV_PREFIX = "ZENSIM_"
+SECRET_SUFFIXES = ("token", "password")
+"""Settings whose values `describe` never logs."""
 S = TypeVar("S", bound=msgspec.Struct)
 
 
@@ -71,7 +73,14 @@ def check_endpoint(endpoint: str) -> str:
 
 
 class ZenohSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """How a service joins the Zenoh network (the flags of zenoh's own examples)."""
+    """How a service joins the Zenoh network (the flags of zenoh's own examples).
+
+    Secure by default: a peer with no endpoints listens on loopback only and
+    no multicast scouting runs (docs/security.md).
+    """
+
+    # Fields whose flag and variable carry no `zenoh` prefix: `--secure-dir`, `ZENSIM_SECURE_DIR`.
+    unprefixed: ClassVar[frozenset[str]] = frozenset({"secure_dir"})
 
     mode: Literal["peer", "client", "router"] = "peer"
     """Zenoh session mode."""
@@ -81,8 +90,10 @@ class ZenohSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """Endpoints to listen on, comma-separated (e.g. tcp/0.0.0.0:7447)."""
     config_file: str | None = None
     """A zenoh JSON5 config file; the settings above override its fields."""
-    multicast_scouting: bool = True
-    """Find peers by UDP multicast; turn off when endpoints are explicit."""
+    multicast_scouting: bool = False
+    """Find peers by UDP multicast on every interface (answers the whole LAN); off unless asked."""
+    secure_dir: str | None = None
+    """A folder made by `zensim secure init`: TLS links, passwords and access roles (docs/security.md)."""
 
     def __post_init__(self) -> None:
         for field, endpoints in (("connect", self.connect), ("listen", self.listen)):
@@ -110,6 +121,9 @@ class CommonSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
 SHARED_FIELDS = frozenset(field.name for field in msgspec.structs.fields(CommonSettings))
 """Top-level fields whose variables every service shares: ZENSIM_ROBOT_ID, ZENSIM_LOG_LEVEL, ZENSIM_ZENOH_*."""
 
+SHARED_NAMES = frozenset({"secure_dir"})
+"""Settings that keep one unprefixed variable wherever they appear (`ZENSIM_SECURE_DIR` for every service and up)."""
+
 AMBIGUOUS_LEGACY: dict[str, tuple[str, ...]] = {
     "ZENSIM_RATE_HZ": ("ZENSIM_BRIDGE_RATE_HZ", "ZENSIM_VIZ_RATE_HZ"),
     "ZENSIM_URDF": ("ZENSIM_SIM_URDF", "ZENSIM_BRIDGE_URDF", "ZENSIM_VIZ_URDF"),
@@ -131,7 +145,7 @@ def _fields_with_env(cls: type[msgspec.Struct]) -> list[tuple[str, tuple[str, ..
     out = []
     for name, path, typ, doc in _flat_fields(cls):
         legacy = ENV_PREFIX + name.upper()
-        if path[0] in SHARED_FIELDS or not prefix:
+        if path[0] in SHARED_FIELDS or name in SHARED_NAMES or not prefix:
             out.append((name, path, typ, doc, legacy, None))
         else:
             out.append((name, path, typ, doc, f"{ENV_PREFIX}{prefix}_{name.upper()}", legacy))
@@ -145,8 +159,9 @@ def _flat_fields(cls: type[msgspec.Struct], prefix: str = "") -> list[tuple[str,
     for field in msgspec.structs.fields(cls):
         path = (field.name,)
         if isinstance(field.type, type) and issubclass(field.type, msgspec.Struct):
+            keep = getattr(field.type, "unprefixed", frozenset())
             for name, sub_path, typ, doc in _flat_fields(field.type, f"{prefix}{field.name}_"):
-                flat.append((name, path + sub_path, typ, doc))
+                flat.append((sub_path[-1] if sub_path[-1] in keep else name, path + sub_path, typ, doc))
         else:
             flat.append((f"{prefix}{field.name}", path, field.type, docs.get(field.name, "")))
     return flat
@@ -248,6 +263,8 @@ def _flatten_values(tree: dict, prefix: str = "") -> list[tuple[str, Any]]:
     for key, value in tree.items():
         if isinstance(value, msgspec.Struct):
             out.extend(_flatten_values(msgspec.structs.asdict(value), f"{prefix}{key}_"))
+        elif key.endswith(SECRET_SUFFIXES) and value:
+            out.append((prefix + key, "<hidden>"))  # logs are read by more people than the page's users
         else:
             out.append((prefix + key, value))
     return out
@@ -266,6 +283,24 @@ def settings_table(cls: type[msgspec.Struct]) -> str:
     return "\n".join(rows) + "\n"
 
 
+def check_secure(settings: ZenohSettings) -> None:
+    """Fail fast on a secured setup that cannot work: a missing folder, plain endpoints, a config file too.
+
+    Raises:
+        SettingsError: names the setting.
+    """
+    if not settings.secure_dir:
+        return
+    if not os.path.isdir(settings.secure_dir):
+        raise SettingsError(f"--secure-dir / ZENSIM_SECURE_DIR {settings.secure_dir!r} is not a folder "
+                            "(make one with `zensim secure init DIR`)")
+    if settings.config_file:
+        raise SettingsError("give either --secure-dir or --zenoh-config-file, not both")
+    plain = [e for e in (*settings.connect, *settings.listen) if not e.startswith("tls/")]
+    if plain:
+        raise SettingsError(f"with --secure-dir every endpoint is tls/, not {', '.join(plain)}")
+
+
 def settings_or_exit(cls: type[S], argv: Sequence[str] | None, prog: str) -> S:
     """`load_settings` for a command's main: a bad setting prints one line and exits with code 2."""
     try:
@@ -273,6 +308,9 @@ def settings_or_exit(cls: type[S], argv: Sequence[str] | None, prog: str) -> S:
         robot_id = getattr(settings, "robot_id", None)
         if robot_id is not None:
             check_robot_id(robot_id)
+        zenoh_settings = getattr(settings, "zenoh", None)
+        if isinstance(zenoh_settings, ZenohSettings):
+            check_secure(zenoh_settings)
     except (SettingsError, ValueError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -24,7 +24,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sim = load_simulation(settings)  # before the session: a bad robot file fails fast
     except StartupError as exc:
         return fail(PROG, str(exc))
-    return serve(PROG, settings, functools.partial(run, sim=sim))
+    return serve(PROG, settings, functools.partial(run, sim=sim), role="sim")
 
 
 if __name__ == "__main__":

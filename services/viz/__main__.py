@@ -21,7 +21,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     setup_logging(settings.log_level)
     from .service import run  # imports tornado and meshcat: only after the settings parsed
 
-    return serve(PROG, settings, run)
+    return serve(PROG, settings, run, role="viz")
 
 
 if __name__ == "__main__":

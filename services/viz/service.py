@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import logging
+import socket
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -36,6 +37,7 @@ import zenoh
 from zensim.common.logs import RateLimitedLog
 from zensim.common.session import StartupError
 from zensim.common.wire import TypedPublisher, decode_input, error_text
+from zensim.robots.mesh_files import mesh_refusal
 from zensim.schemas import (
     Codec,
     CtlReply,
@@ -59,6 +61,7 @@ from zensim.schemas.bounds import STATE_CAP_BYTES
 
 from . import panel, plots, scene
 from .settings import VizSettings
+from .access import WILDCARDS, Guard
 from .web import Client, Hub, make_app
 
 logger = logging.getLogger(__name__)
@@ -220,10 +223,12 @@ class VizService:
             source = str(urdf_path)
             for filename in scene.parse_urdf(urdf_text).mesh_filenames():
                 path = Path(scene.local_mesh_path(str(urdf_path.parent), filename))
-                if path.is_file():
-                    meshes[filename] = path.read_bytes()
-                else:
+                if not path.is_file():
                     logger.warning("mesh %s not found at %s", filename, path)
+                elif (refusal := mesh_refusal(filename, path, urdf_path.parent)) is not None:
+                    logger.warning("not sent to browsers: %s", refusal)  # as the sim refuses it
+                else:
+                    meshes[filename] = path.read_bytes()
         else:
             assert info is not None
             urdf_text = self._get_bytes(self.keys.urdf).decode("utf-8")
@@ -379,16 +384,23 @@ def _bounded_texts(fields: dict[str, Any]) -> dict[str, Any]:
 def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) -> int:
     """Serve the page until `stop` is set; returns the exit code."""
     service = VizService(session, settings, stop)
-    server = tornado.httpserver.HTTPServer(make_app(service.hub))
     try:
         sockets = tornado.netutil.bind_sockets(settings.port, address=settings.host)
     except OSError as exc:
         service.close()
         raise StartupError(f"cannot serve the page on {settings.host}:{settings.port} "
                            f"(--host / ZENSIM_VIZ_HOST, --port / ZENSIM_VIZ_PORT): {exc.strerror or exc}") from None
-    server.add_sockets(sockets)
     port = sockets[0].getsockname()[1]
+    guard = Guard(settings.host, settings.published_on, settings.allowed_hosts, settings.token)
+    guard.cookie_name = f"zensim_viz_token_{port}"
+    server = tornado.httpserver.HTTPServer(make_app(service.hub, guard))
+    server.add_sockets(sockets)
     logger.info("viz up: http://%s:%d/", settings.host, port)
+    if guard.token is not None:
+        # Once, like Jupyter: whoever can read this log can open the page.
+        shown = settings.host if settings.host not in WILDCARDS else socket.gethostname()
+        logger.info("the page is reachable beyond loopback: open it with its token: http://%s:%d/?token=%s",
+                    shown, port, guard.token)
     fetcher = threading.Thread(target=service.fetch_loop, name="viz-description", daemon=True)
     fetcher.start()
     tornado.ioloop.PeriodicCallback(service.tick, 1000.0 / settings.rate_hz).start()

@@ -28,3 +28,12 @@ class VizSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     """Where the ghost stands relative to the robot, x,y,z in m, world frame (default: beside it; 0,0,0: over it)."""
     query_timeout_s: Annotated[float, msgspec.Meta(gt=0)] = 5.0
     """Timeout of each zenoh get (description, ctl requests), s."""
+    allowed_hosts: tuple[str, ...] = ()
+    """Extra Host names the page answers to, comma-separated (loopback names, IP addresses and --host always;
+    * any); other names are refused against DNS rebinding."""
+    token: str | None = None
+    """Access token required when the page is reachable beyond loopback (default: a random one, printed at
+    start as a URL); set it for compose."""
+    published_on: str | None = None
+    """Where the page is reachable from outside when that is not --host (compose passes ZENSIM_BIND);
+    anything but loopback requires the token."""

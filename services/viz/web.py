@@ -34,7 +34,12 @@ import meshcat
 import tornado.web
 import tornado.websocket
 
+from zensim.common.logs import RateLimitedLog
+
+from .access import Guard
+
 logger = logging.getLogger(__name__)
+refusals = RateLimitedLog(logger)
 
 KIND_COMMAND = 1
 KIND_FRAME = 2
@@ -157,7 +162,36 @@ class Hub:
         logger.info("browser left (%d now)", len(self.clients))
 
 
-class VizSocket(tornado.websocket.WebSocketHandler):
+class Guarded(tornado.web.RequestHandler):
+    """Every handler's gate (access.py): the Host allow-list, then the token when one is needed.
+
+    A valid `?token=` sets the cookie; on the page itself it then redirects to the bare URL, so the
+    token does not linger in the address bar or history.
+    """
+
+    def prepare(self) -> None:
+        guard: Guard = self.application.settings["guard"]
+        if not guard.host_ok(self.request.host):
+            self._refuse(guard, f"Host {self.request.host[:100]!r} is not allowed")
+        if guard.token is None:
+            return
+        given = self.get_query_argument("token", None)
+        if given is not None and guard.token_ok(given):
+            self.set_cookie(guard.cookie_name, given, path="/", httponly=True, samesite="Strict")
+            if self.request.path == "/":
+                self.redirect("/")
+            return
+        if not guard.token_ok(self.get_cookie(guard.cookie_name)):
+            self._refuse(guard, "no valid access token")
+
+    def _refuse(self, guard: Guard, why: str) -> None:
+        guard.refused += 1
+        refusals.warning("refused %s %s from %s: %s (%d refused so far)", self.request.method,
+                         self.request.path[:100], self.request.remote_ip, why, guard.refused)
+        raise tornado.web.HTTPError(403, reason="Forbidden: open the URL the viz printed at start")
+
+
+class VizSocket(Guarded, tornado.websocket.WebSocketHandler):
     """The page's websocket: meshcat commands and frames out, JSON panel input in."""
 
     def initialize(self, hub: Hub) -> None:
@@ -189,13 +223,13 @@ class VizSocket(tornado.websocket.WebSocketHandler):
         self.hub.closed(self.client)
 
 
-class NoCacheStatic(tornado.web.StaticFileHandler):
+class NoCacheStatic(Guarded, tornado.web.StaticFileHandler):
     def set_extra_headers(self, path: str) -> None:
         # A restarted viz may serve a newer page: never let the browser keep an old one.
         self.set_header("Cache-Control", "no-cache")
 
 
-class MeshcatJs(tornado.web.RequestHandler):
+class MeshcatJs(Guarded):
     """meshcat's viewer bundle straight from the installed wheel (works offline)."""
 
     def get(self) -> None:
@@ -204,7 +238,7 @@ class MeshcatJs(tornado.web.RequestHandler):
         self.write(MESHCAT_JS.read_bytes())
 
 
-class PlotlyJs(tornado.web.RequestHandler):
+class PlotlyJs(Guarded):
     """plotly.js for the plot panel, straight from the installed plotly wheel (MIT; works offline).
 
     4.8 MB: the page loads it only when the plot panel is opened; gzip (compressed once) where accepted.
@@ -225,15 +259,15 @@ class PlotlyJs(tornado.web.RequestHandler):
             self.write(PLOTLY_JS.read_bytes())
 
 
-class IndexPage(tornado.web.RequestHandler):
+class IndexPage(Guarded):
     def get(self) -> None:
         self.set_header("Content-Type", "text/html; charset=utf-8")
         self.set_header("Cache-Control", "no-cache")
         self.write((STATIC_DIR / "index.html").read_bytes())
 
 
-def make_app(hub: Hub) -> tornado.web.Application:
-    """The tornado application: `/`, `/static/*`, `/meshcat/main.min.js`, `/ws`."""
+def make_app(hub: Hub, guard: Guard) -> tornado.web.Application:
+    """The tornado application: `/`, `/static/*`, `/meshcat/main.min.js`, `/ws`, each behind `guard`."""
     return tornado.web.Application(
         [
             (r"/", IndexPage),
@@ -245,6 +279,7 @@ def make_app(hub: Hub) -> tornado.web.Application:
         websocket_max_message_size=MAX_CLIENT_MESSAGE_BYTES,
         websocket_ping_interval=5,
         websocket_ping_timeout=15,
+        guard=guard,
     )
 
 

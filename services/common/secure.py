@@ -1,0 +1,267 @@
+"""Secured Zenoh links built on Zenoh's own TLS, user/password authentication and access control.
+
+`zensim secure init DIR` (zensim/secure.py) writes a folder:
+
+    router.json5     the router: tls/ listener, mutual TLS, the password dictionary, the access rules
+    users.txt        user:password lines the router checks (zenoh's usrpwd dictionary_file)
+    sim.json5, bridge.json5, viz.json5      each service's client config (its own user and certificate)
+    operator.json5, viewer.json5            ready-made client configs for people and tools
+    ca.pem           the CA certificate (to check the router's certificate by hand)
+
+Every client config is self-contained (certificates inline as base64), so any
+Zenoh client in any language loads it as is and adds only connect/endpoints.
+Nothing here does cryptography itself: the `cryptography` package makes the
+keys and certificates, zenoh does TLS, authentication and access control.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime
+import ipaddress
+import json
+import secrets
+from pathlib import Path
+from typing import Final
+
+import zenoh
+
+SERVICE_ROLES: Final = ("sim", "bridge", "viz")
+CLIENT_ROLES: Final = ("operator", "viewer")
+ROLES: Final = (*SERVICE_ROLES, *CLIENT_ROLES)
+DEFAULT_HOSTS: Final = ("localhost", "127.0.0.1", "::1", "router")
+"""Names every router certificate carries: this machine, and compose's service name `router`."""
+USERS_FILE: Final = "users.txt"
+CERT_DAYS: Final = 825
+
+
+class SecureConfigError(ValueError):
+    """A secure folder that is missing a file or is used with plain endpoints; names what is wrong."""
+
+
+# ------------------------------------------------------------------------------------- access rules
+def _rule(rule_id: str, flow: str, messages: list[str], keys: list[str]) -> dict:
+    return {"id": rule_id, "flows": [flow], "permission": "allow", "messages": messages,
+            "key_exprs": [f"zensim/*/{k}" for k in keys]}
+
+
+# What each role may send to the router (ingress) and be sent by it (egress). Everything else is
+# denied (default_permission deny). Declarations the router forwards (egress declare_*) are allowed to
+# every role so a publisher learns who listens; what is forwarded as data is restricted per role.
+ROLE_RULES: Final[dict[str, list[tuple[str, list[str], list[str]]]]] = {
+    "sim": [
+        ("ingress", ["put"], ["state/joints", "state/odom", "state/imu", "state/sim", "state/applied"]),
+        ("ingress", ["declare_queryable", "reply"], ["ctl/**", "info/**"]),
+        ("ingress", ["declare_subscriber"], ["cmd/motors"]),
+        ("ingress", ["liveliness_token"], ["alive/sim"]),
+        ("egress", ["put"], ["cmd/motors"]),
+        ("egress", ["query"], ["ctl/**", "info/**"]),
+    ],
+    "bridge": [
+        ("ingress", ["put"], ["cmd/motors", "state/targets", "report/bridge"]),
+        ("ingress", ["declare_subscriber"], ["state/**", "cmd/joints", "cmd/joint/*"]),
+        ("ingress", ["query"], ["info/**"]),
+        ("ingress", ["liveliness_token"], ["alive/bridge"]),
+        ("egress", ["put"], ["state/**", "cmd/joints", "cmd/joint/*"]),
+        ("egress", ["reply"], ["info/**"]),
+    ],
+    "viz": [
+        ("ingress", ["put"], ["cmd/joints"]),
+        ("ingress", ["declare_subscriber"], ["state/**", "cmd/motors"]),  # cmd/motors: the plot's targets
+        ("ingress", ["query"], ["info/**", "ctl/**"]),
+        ("ingress", ["liveliness_token"], ["alive/viz"]),
+        ("egress", ["put"], ["state/**", "cmd/motors"]),
+        ("egress", ["reply"], ["info/**", "ctl/**"]),
+    ],
+    "operator": [
+        ("ingress", ["put"], ["cmd/**"]),
+        ("ingress", ["declare_subscriber"], ["**"]),
+        ("ingress", ["query"], ["ctl/**", "info/**"]),
+        ("egress", ["put"], ["**"]),
+        ("egress", ["reply"], ["ctl/**", "info/**"]),
+    ],
+    "viewer": [
+        ("ingress", ["declare_subscriber"], ["state/**"]),
+        ("ingress", ["query"], ["info/**"]),
+        ("egress", ["put"], ["state/**"]),
+        ("egress", ["reply"], ["info/**"]),
+    ],
+}
+EVERY_ROLE_RULES: Final = [
+    ("ingress", ["declare_liveliness_subscriber", "liveliness_query"], ["alive/**"]),
+    ("egress", ["liveliness_token", "liveliness_query"], ["alive/**"]),
+    ("egress", ["declare_subscriber", "declare_queryable", "declare_liveliness_subscriber"], ["**"]),
+]
+
+
+def access_control() -> dict:
+    """Zenoh's `access_control` block: one subject per role (its user name and certificate name)."""
+    rules, subjects, policies = [], [], []
+    for role in ROLES:
+        ids = []
+        for n, (flow, messages, keys) in enumerate(ROLE_RULES[role] + EVERY_ROLE_RULES):
+            ids.append(f"{role}-{n}")
+            rules.append(_rule(ids[-1], flow, messages, keys))
+        subjects.append({"id": role, "usernames": [role], "cert_common_names": [cert_name(role)]})
+        policies.append({"id": role, "rules": ids, "subjects": [role]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def cert_name(role: str) -> str:
+    return f"zensim-{role}"
+
+
+# ------------------------------------------------------------------------------------- certificates
+def _b64(pem: bytes) -> str:
+    return base64.b64encode(pem).decode()
+
+
+def _new_key():  # noqa: ANN202 - a cryptography private key
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    return ec.generate_private_key(ec.SECP256R1())
+
+
+def _key_pem(key) -> bytes:  # noqa: ANN001
+    from cryptography.hazmat.primitives import serialization
+
+    return key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                             serialization.NoEncryption())
+
+
+def _cert(subject_cn: str, key, issuer_cn: str, issuer_key, days: int, *, ca: bool = False,  # noqa: ANN001
+          hosts: tuple[str, ...] = (), client: bool = False):  # noqa: ANN202
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    now = datetime.datetime.now(datetime.timezone.utc)
+    builder = (
+        x509.CertificateBuilder()
+        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, subject_cn)]))
+        .issuer_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, issuer_cn)]))
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=days))
+        .add_extension(x509.BasicConstraints(ca=ca, path_length=0 if ca else None), critical=True)
+    )
+    if ca:
+        builder = builder.add_extension(
+            x509.KeyUsage(digital_signature=True, key_cert_sign=True, crl_sign=True, content_commitment=False,
+                          key_encipherment=False, data_encipherment=False, key_agreement=False,
+                          encipher_only=False, decipher_only=False), critical=True)
+    else:
+        names: list[x509.GeneralName] = []
+        for host in hosts:
+            try:
+                names.append(x509.IPAddress(ipaddress.ip_address(host)))
+            except ValueError:
+                names.append(x509.DNSName(host))
+        if client:
+            names.append(x509.DNSName(subject_cn))
+        builder = builder.add_extension(x509.SubjectAlternativeName(names), critical=False)
+        usage = ExtendedKeyUsageOID.CLIENT_AUTH if client else ExtendedKeyUsageOID.SERVER_AUTH
+        builder = builder.add_extension(x509.ExtendedKeyUsage([usage]), critical=False)
+    from cryptography.hazmat.primitives import serialization
+
+    return builder.sign(issuer_key, hashes.SHA256()).public_bytes(serialization.Encoding.PEM)
+
+
+def _write(path: Path, text: str, private: bool) -> None:
+    path.write_text(text)
+    path.chmod(0o600 if private else 0o644)
+
+
+def _json5(header: str, config: dict) -> str:
+    return "// " + "\n// ".join(header.splitlines()) + "\n" + json.dumps(config, indent=2) + "\n"
+
+
+def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("tls/127.0.0.1:7447",),
+         days: int = CERT_DAYS) -> list[Path]:
+    """Make a CA, the router's certificate, one certificate and password per role, and the configs.
+
+    The CA key is not kept: run `init` again (into a fresh folder) to change hosts or roles.
+
+    Args:
+        folder: where to write; must not exist or be empty.
+        hosts: extra DNS names or IP addresses the router is reached at (DEFAULT_HOSTS are always in).
+        listen: the router's default tls/ listen endpoints (`--zenoh-listen` overrides them).
+        days: certificate lifetime.
+
+    Returns:
+        The files written.
+
+    Raises:
+        SecureConfigError: `folder` is not empty.
+    """
+    if folder.exists() and any(folder.iterdir()):
+        raise SecureConfigError(f"{folder} is not empty: choose a new folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    folder.chmod(0o700)
+    ca_key = _new_key()
+    ca_pem = _cert("zensim CA", ca_key, "zensim CA", ca_key, days, ca=True)
+    all_hosts = tuple(dict.fromkeys((*DEFAULT_HOSTS, *hosts)))
+    router_key = _new_key()
+    router_pem = _cert(cert_name("router"), router_key, "zensim CA", ca_key, days, hosts=all_hosts)
+    written: list[Path] = []
+
+    def put(name: str, text: str, private: bool = True) -> None:
+        _write(folder / name, text, private)
+        written.append(folder / name)
+
+    put("ca.pem", ca_pem.decode(), private=False)
+    passwords = {role: secrets.token_urlsafe(24) for role in ROLES}
+    put(USERS_FILE, "".join(f"{role}:{pw}\n" for role, pw in passwords.items()))
+    router = {
+        "mode": "router",
+        "listen": {"endpoints": list(listen)},
+        "transport": {
+            "link": {"tls": {"root_ca_certificate_base64": _b64(ca_pem),
+                             "listen_certificate_base64": _b64(router_pem),
+                             "listen_private_key_base64": _b64(_key_pem(router_key)),
+                             "enable_mtls": True}},
+            # zensim sets the absolute path at start; zenohd needs it edited to where the file is.
+            "auth": {"usrpwd": {"dictionary_file": USERS_FILE}},
+        },
+        "access_control": access_control(),
+    }
+    put("router.json5", _json5(f"zensim router, secured (hosts: {', '.join(all_hosts)}). Keep private.", router))
+    for role in ROLES:
+        key = _new_key()
+        pem = _cert(cert_name(role), key, "zensim CA", ca_key, days, client=True)
+        client = {
+            "mode": "client",
+            "transport": {
+                "link": {"tls": {"root_ca_certificate_base64": _b64(ca_pem),
+                                 "connect_certificate_base64": _b64(pem),
+                                 "connect_private_key_base64": _b64(_key_pem(key)),
+                                 "enable_mtls": True}},
+                "auth": {"usrpwd": {"user": role, "password": passwords[role]}},
+            },
+        }
+        put(f"{role}.json5", _json5(
+            f"zensim {role} credentials: a Zenoh client config; add connect/endpoints, e.g.\n"
+            f'  "connect": {{"endpoints": ["tls/<router host>:7447"]}}\nKeep private.', client))
+    return written
+
+
+# ------------------------------------------------------------------------------------------ loading
+def role_config(folder: str | Path, role: str) -> zenoh.Config:
+    """The zenoh.Config of `role` from a folder made by `init`.
+
+    Raises:
+        SecureConfigError: the folder lacks the role's file.
+    """
+    folder = Path(folder)
+    path = folder / f"{role}.json5"
+    if not path.is_file():
+        raise SecureConfigError(f"{path} not found: make the folder with `zensim secure init {folder}`")
+    conf = zenoh.Config.from_file(str(path))
+    if role == "router":
+        users = folder / USERS_FILE
+        if not users.is_file():
+            raise SecureConfigError(f"{users} not found")
+        conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(users.resolve())))
+    return conf

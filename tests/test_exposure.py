@@ -1,0 +1,119 @@
+"""Nothing exposed by default: the sockets of services started with no network flags, of `zensim up`, and
+compose's defaults.
+
+Each run gets its own network namespace (tests/netns.py) with a LAN interface `eth0` beside `lo`, so
+the default meeting point tcp/127.0.0.1:7447 and the viz's port 7000 are free, and what the kernel
+lists for the namespace (/proc/<pid>/net/...) is exactly what our processes opened.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import yaml
+
+from netns import Network, NetnsError, NsProcess
+from support import REPO, wait_for
+
+SCOUTING_PORT = 7446
+SCOUTING_GROUP_HEX = "E00000E0"  # 224.0.0.224 as /proc/net/igmp writes it
+LOOPBACK = {"127.0.0.1", "::1"}
+
+
+@pytest.fixture
+def net() -> Iterator[Network]:
+    try:
+        with Network(["solo"]) as network:
+            yield network
+    except NetnsError as exc:
+        pytest.skip(f"no network namespaces here: {exc}")
+
+
+def _addr(hex_addr: str) -> tuple[str, int]:
+    host, port = hex_addr.split(":")
+    raw = bytes.fromhex(host)
+    if len(raw) == 4:
+        ip = ".".join(str(b) for b in reversed(raw))
+    else:  # four little-endian 32-bit words
+        words = b"".join(raw[i:i + 4][::-1] for i in range(0, 16, 4))
+        import ipaddress
+
+        ip = str(ipaddress.IPv6Address(words))
+        mapped = ipaddress.IPv6Address(words).ipv4_mapped
+        ip = str(mapped) if mapped else ip
+    return ip, int(port, 16)
+
+
+def sockets(pid: int) -> dict[str, list[tuple[str, int]]]:
+    """TCP listeners and UDP sockets of the namespace `pid` lives in: {"tcp_listen": [...], "udp": [...]}."""
+    out: dict[str, list[tuple[str, int]]] = {"tcp_listen": [], "udp": []}
+    for table in ("tcp", "tcp6", "udp", "udp6"):
+        lines = Path(f"/proc/{pid}/net/{table}").read_text().splitlines()[1:]
+        for line in lines:
+            fields = line.split()
+            local, state = fields[1], fields[3]
+            if table.startswith("tcp") and state == "0A":
+                out["tcp_listen"].append(_addr(local))
+            elif table.startswith("udp"):
+                out["udp"].append(_addr(local))
+    return out
+
+
+def assert_nothing_exposed(pid: int) -> None:
+    found = sockets(pid)
+    assert found["tcp_listen"], "expected some loopback listeners"
+    exposed = [s for s in found["tcp_listen"] if s[0] not in LOOPBACK]
+    assert not exposed, f"TCP listeners beyond loopback: {exposed}"
+    assert not [s for s in found["udp"] if s[1] == SCOUTING_PORT or s[0] not in LOOPBACK], found["udp"]
+    assert SCOUTING_GROUP_HEX not in Path(f"/proc/{pid}/net/igmp").read_text().upper()
+
+
+def env_without_network_settings() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ZENSIM_")}
+    return dict(env, PYTHONUNBUFFERED="1", ZENSIM_MODE="fixed")
+
+
+def check(net: Network, service: str) -> bool:
+    done = subprocess.run(net.exec_argv("solo", [sys.executable, "-m", "zensim", "check", "--service", service]),
+                          env=env_without_network_settings(), capture_output=True, timeout=60)
+    return done.returncode == 0
+
+
+def test_services_started_by_hand_with_no_flags_meet_on_loopback_only(net: Network, tmp_path: Path) -> None:
+    env = env_without_network_settings()
+    procs = [NsProcess(net, "solo", [sys.executable, "-m", "zensim", name], env, tmp_path, name=name)
+             for name in ("sim", "bridge", "viz")]
+    sim, bridge, viz = procs
+    try:
+        wait_for(lambda: "robot from the sim" in bridge.log() or not bridge.alive(), 90, "the bridge to find the sim")
+        wait_for(lambda: "sim is alive" in viz.log() or not viz.alive(), 30, "the viz to see the sim")
+        assert all(p.alive() for p in procs), "\n".join(p.log() for p in procs)
+        assert check(net, "bridge") and check(net, "viz")
+        assert_nothing_exposed(sim.pid)
+    finally:
+        for proc in procs:
+            proc.stop()
+
+
+def test_zensim_up_with_defaults_listens_on_loopback_only(net: Network, tmp_path: Path) -> None:
+    up = NsProcess(net, "solo", [sys.executable, "-m", "zensim", "up"], env_without_network_settings(), tmp_path,
+                   name="up")
+    try:
+        wait_for(lambda: check(net, "viz") or not up.alive(), 120, "zensim up's viz", interval_s=1.0)
+        assert check(net, "sim") and check(net, "bridge"), up.log()
+        assert_nothing_exposed(up.pid)
+    finally:
+        up.stop(15)
+
+
+def test_compose_defaults_publish_on_loopback_and_scout_nowhere() -> None:
+    compose = yaml.safe_load((REPO / "compose.yaml").read_text())
+    for name, service in compose["services"].items():
+        for port in service.get("ports", []):
+            assert port.startswith("${ZENSIM_BIND:-127.0.0.1}:"), (name, port)
+        assert service["environment"]["ZENSIM_ZENOH_MULTICAST_SCOUTING"] == "false", name

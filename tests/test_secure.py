@@ -1,0 +1,198 @@
+"""Secured links (`zensim secure init`, `--secure-dir`): real router and sim processes, Zenoh's own TLS,
+passwords and access control; clients load the generated role configs as any Zenoh client would."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from support import Latest, Service, free_port, wait_for
+from zensim.router import ACL_AUDIT_LOG
+from zensim.schemas import JointState, SimStatus
+
+
+@pytest.fixture(scope="module")
+def secrets_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("sec") / "secrets"
+    done = subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(folder), "--host", "sim-host.lan"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return folder
+
+
+def strip_ansi(text: str) -> str:
+    return re.sub(r"\x1b\[[0-9;]*m", "", text)
+
+
+def role_conf(folder: Path, role: str, endpoint: str) -> zenoh.Config:
+    """What a user does with DIR/<role>.json5: load it as is, add connect/endpoints."""
+    conf = zenoh.Config.from_file(str(folder / f"{role}.json5"))
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    return conf
+
+
+def refused(conf: zenoh.Config) -> bool:
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError:
+        return True
+    session.close()
+    return False
+
+
+@pytest.fixture
+def secured(secrets_dir: Path, tmp_path: Path, robot_id: str) -> Iterator[tuple[str, Service, Service]]:
+    """A secured router and a fixed-mode sim on a free tls/ port: (endpoint, router, sim)."""
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    env = dict(os.environ, ZENSIM_SECURE_DIR=str(secrets_dir), ZENSIM_ROBOT_ID=robot_id, PYTHONUNBUFFERED="1")
+    router_env = dict(env, RUST_LOG=ACL_AUDIT_LOG)  # the audit log docs/security.md describes
+    router = Service("router", ["--zenoh-listen", endpoint], router_env, tmp_path)
+    sim = None
+    try:
+        wait_for(lambda: "router up" in router.log() or not router.alive(), 20, "the secured router")
+        assert router.alive(), router.log()
+        sim = Service("sim", ["--zenoh-connect", endpoint, "--mode", "fixed"], env, tmp_path)
+        yield endpoint, router, sim
+    finally:
+        if sim is not None:
+            sim.stop()
+        router.stop()
+
+
+def test_init_writes_self_contained_role_configs(secrets_dir: Path) -> None:
+    names = {p.name for p in secrets_dir.iterdir()}
+    assert {"router.json5", "users.txt", "ca.pem", "sim.json5", "bridge.json5", "viz.json5",
+            "operator.json5", "viewer.json5"} <= names
+    for role in ("operator", "viewer"):
+        text = (secrets_dir / f"{role}.json5").read_text()
+        assert str(secrets_dir) not in text  # no paths: the file works when copied to another machine
+        zenoh.Config.from_file(str(secrets_dir / f"{role}.json5"))
+    assert (secrets_dir / "users.txt").stat().st_mode & 0o077 == 0
+    again = subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(secrets_dir)],
+                           capture_output=True, text=True, timeout=60)
+    assert again.returncode == 2 and "not empty" in again.stderr
+
+
+def test_router_refuses_plain_tcp_wrong_password_and_foreign_certificates(
+        secured: tuple[str, Service, Service], secrets_dir: Path, tmp_path: Path) -> None:
+    endpoint, router, _ = secured
+    plain = zenoh.Config()
+    plain.insert_json5("mode", '"client"')
+    plain.insert_json5("connect/endpoints", json.dumps(["tcp/" + endpoint.split("/", 1)[1]]))
+    assert refused(plain)
+
+    wrong_password = role_conf(secrets_dir, "operator", endpoint)
+    wrong_password.insert_json5("transport/auth/usrpwd/password", '"not-the-password"')
+    assert refused(wrong_password)
+
+    # A certificate from another CA, presented to a router the client itself trusts.
+    other = tmp_path / "other"
+    subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(other)], check=True,
+                   capture_output=True, timeout=60)
+    foreign = role_conf(secrets_dir, "operator", endpoint)
+    text = (other / "operator.json5").read_text()
+    body = "\n".join(line for line in text.splitlines() if not line.startswith("//"))
+    other_tls = json.loads(body)["transport"]["link"]["tls"]
+    for field in ("connect_certificate_base64", "connect_private_key_base64"):
+        foreign.insert_json5(f"transport/link/tls/{field}", json.dumps(other_tls[field]))
+    assert refused(foreign)
+
+    # The same credentials, unchanged, do connect: the refusals above are about what was changed.
+    assert not refused(role_conf(secrets_dir, "operator", endpoint))
+    assert router.alive()
+
+
+def test_viewer_reads_but_cannot_drive_operator_can(secured: tuple[str, Service, Service], secrets_dir: Path,
+                                                     robot_id: str) -> None:
+    endpoint, router, sim = secured
+    root = f"zensim/{robot_id}"
+    with zenoh.open(role_conf(secrets_dir, "viewer", endpoint)) as viewer, \
+            zenoh.open(role_conf(secrets_dir, "operator", endpoint)) as operator:
+        joints = Latest(viewer, f"{root}/state/joints", JointState)
+        status = Latest(operator, f"{root}/state/sim", SimStatus)
+        joints.wait(timeout_s=60, what="state/joints at the viewer")
+        info = json.loads(next(iter(viewer.get(f"{root}/info/robot?format=json", timeout=10))).ok.payload.to_bytes())
+        assert info["mode"] == "fixed"
+        status.wait(timeout_s=10)
+
+        # The viewer's commands and control queries never reach the sim.
+        name = info["joint_names"][0]
+        motors = json.dumps({"names": [name], "q": [0.3], "kp": [20.0], "kd": [1.0]})
+        for _ in range(20):
+            viewer.put(f"{root}/cmd/motors", motors)
+            viewer.put(f"{root}/cmd/motors", "{not json")  # would be counted as rejected if it arrived
+            time.sleep(0.02)
+        assert list(viewer.get(f"{root}/ctl/pause", payload="{}", timeout=2)) == []
+        before = status.value.seq
+        seen = status.wait(lambda s: s.seq > before + 5, what="fresh status")
+        assert seen.command_age_s is None and seen.rejected_commands == 0 and not seen.paused
+
+        # Nobody but the sim publishes the sim's keys: a viewer's and another operator's forged status
+        # never reach this operator (a session's own puts reach its own subscribers without the router).
+        forged = json.dumps({"type": "sim_status", "sim_time_s": 0, "rtf": 1, "paused": True, "mode": "fixed",
+                             "fallen": False, "run_id": "forged"})
+        status.keep_history = True
+        with zenoh.open(role_conf(secrets_dir, "operator", endpoint)) as forger:
+            for _ in range(10):
+                viewer.put(f"{root}/state/sim", forged)
+                forger.put(f"{root}/state/sim", forged)
+                time.sleep(0.05)
+        status.wait(lambda s: s.seq > seen.seq + 5, what="more status")
+        assert all(s.run_id != "forged" for s in status.history)
+
+        # The operator drives the sim: its command arrives, its pause pauses.
+        operator.put(f"{root}/cmd/motors", motors)
+        status.wait(lambda s: s.command_age_s is not None, what="the operator's command to arrive")
+        reply = json.loads(next(iter(operator.get(f"{root}/ctl/pause", payload="{}", timeout=10))).ok.payload.to_bytes())
+        assert reply["ok"], reply
+        status.wait(lambda s: s.paused, what="the sim to pause")
+    assert sim.alive() and router.alive()
+    # The router's audit log names who was refused what.
+    for what in (f"is unauthorized to Put (ingress) on {root}/cmd/motors",
+                 f"is unauthorized to Query (ingress) on {root}/ctl/pause"):
+        wait_for(lambda: re.search(r"Username\(viewer\)[^\n]*" + re.escape(what), strip_ansi(router.log())),
+                 5, f"the router's log line: viewer {what}")
+
+
+def test_zensim_up_secured_runs_everything_and_operator_drives_through_the_bridge(
+        secrets_dir: Path, tmp_path: Path, robot_id: str) -> None:
+    """Each service's own role is enough for its job: the bridge moves a joint the operator asks for."""
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    viz_port = free_port()
+    env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_PORT=str(viz_port), ZENSIM_MODE="fixed",
+               PYTHONUNBUFFERED="1")
+    up = Service("up", ["--secure-dir", str(secrets_dir), "--router-endpoint", endpoint], env, tmp_path)
+    root = f"zensim/{robot_id}"
+    try:
+        conf = role_conf(secrets_dir, "operator", endpoint)
+        conf.insert_json5("connect/timeout_ms", "-1")
+        with zenoh.open(conf) as operator:
+            def alive() -> set[str]:
+                replies = operator.liveliness().get(f"{root}/alive/*", timeout=1.0)
+                return {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
+
+            wait_for(lambda: alive() >= {"router", "sim", "bridge", "viz"} or not up.alive(), 90, "all four", 0.2)
+            assert up.alive(), up.log()
+            joints = Latest(operator, f"{root}/state/joints", JointState)
+            joints.wait(timeout_s=30)
+            info = json.loads(next(iter(operator.get(f"{root}/info/robot?format=json", timeout=10))).ok.payload.to_bytes())
+            knee, target = info["joint_names"].index("left_knee_joint"), 0.3
+            assert abs(joints.value.q[knee] - target) > 0.3
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and abs(joints.value.q[knee] - target) > 0.05:
+                operator.put(f"{root}/cmd/joint/left_knee_joint", str(target))  # to the bridge, then cmd/motors
+                time.sleep(0.2)
+            assert joints.value.q[knee] == pytest.approx(target, abs=0.05), up.log()
+            # The viz fetched the sim's description with its own role.
+            wait_for(lambda: "description of" in up.log(), 30, "the viz's description fetch")
+    finally:
+        up.stop(15)

@@ -1,0 +1,49 @@
+"""`zensim secure init DIR`: make the credentials and Zenoh configs of a secured zensim network.
+
+    zensim secure init secrets --host sim-host.lan --host 192.168.1.20
+    zensim up --secure-dir secrets           # router + services over TLS with roles
+    # any Zenoh client: load secrets/operator.json5 (or viewer.json5) and add connect/endpoints
+
+The folder's layout and the roles are described in services/common/secure.py and docs/security.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from zensim.common.secure import DEFAULT_HOSTS, ROLES, SecureConfigError, init
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="zensim secure", description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    make = commands.add_parser("init", help="make a CA, certificates, passwords and the role configs in DIR")
+    make.add_argument("dir", type=Path, help="a new (or empty) folder; keep it private")
+    make.add_argument("--host", action="append", default=[],
+                      help=f"a DNS name or IP the router is reached at (repeatable; always: {', '.join(DEFAULT_HOSTS)})")
+    make.add_argument("--listen", action="append", default=[],
+                      help="the router's default tls/ listen endpoint (repeatable; default tls/127.0.0.1:7447)")
+    make.add_argument("--days", type=int, default=825, help="certificate lifetime in days (default 825)")
+    args = parser.parse_args(list(argv) if argv is not None else None)
+    listen = tuple(args.listen) or ("tls/127.0.0.1:7447",)
+    bad = [e for e in listen if not e.startswith("tls/")]
+    if bad:
+        print(f"zensim secure: --listen takes tls/ endpoints, not {', '.join(bad)}", file=sys.stderr)
+        return 2
+    try:
+        init(args.dir, tuple(args.host), listen, args.days)
+    except SecureConfigError as exc:
+        print(f"zensim secure: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.dir}: router.json5, users.txt, ca.pem and one config per role ({', '.join(ROLES)})")
+    print(f"run:      zensim up --secure-dir {args.dir}")
+    print(f"clients:  zenoh.Config.from_file('{args.dir}/operator.json5') + connect/endpoints "
+          "[\"tls/<router host>:7447\"]")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
