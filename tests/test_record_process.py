@@ -14,11 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 from mcap.reader import make_reader
 
 from browser import Browser, chromium_binary
 from support import Latest, Service, ctl, free_port, wait_for
 from test_lockstep_process import advance, scripted_command
+from test_secure import role_conf, secrets_dir  # noqa: F401 - the module-scoped fixture
 from test_sim_process import put_json, robot_info, wait_alive
 from zensim.schemas import JointState, Keys
 
@@ -215,3 +217,34 @@ def test_bad_files_get_one_line_and_exit_code_2(tmp_path) -> None:
         assert result.returncode == 2, (args, result.stdout, result.stderr)
         assert "Traceback" not in result.stderr, (args, result.stderr)
         assert result.stderr.strip().splitlines()[-1].startswith(f"zensim {args[0]}: "), (args, result.stderr)
+
+
+def test_secured_lockstep_run_is_recorded_whole_and_resims_to_zero(secrets_dir, tmp_path, robot_id) -> None:
+    """Secured network (TLS, passwords, access roles): the sim's role may publish state/applied, the
+    recorder reads everything as the operator, the operator drives ctl/advance."""
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    env = dict(os.environ, ZENSIM_SECURE_DIR=str(secrets_dir), ZENSIM_ROBOT_ID=robot_id, PYTHONUNBUFFERED="1")
+    keys, path = Keys(robot_id), tmp_path / "secured.mcap"
+    router = Service("router", ["--zenoh-listen", endpoint], env, tmp_path)
+    started = [router]
+    try:
+        wait_for(lambda: "router up" in router.log() or not router.alive(), 20, "the secured router")
+        started.append(Service("sim", ["--zenoh-connect", endpoint, "--clock", "lockstep"], env, tmp_path))
+        recorder = Service("record", ["-o", str(path), "--zenoh-connect", endpoint], env, tmp_path)
+        started.append(recorder)
+        wait_for(lambda: "saved the sim's description" in recorder.log() or not recorder.alive(), 30,
+                 "the recorder to save the description")
+        with zenoh.open(role_conf(secrets_dir, "operator", endpoint)) as operator:
+            info = robot_info(operator, keys)
+            q = list(info["default_q"][info["mode"]])
+            for k in range(20):
+                q = advance(operator, keys, scripted_command(k, info, q))["joints"]["q"]
+        time.sleep(0.3)
+        stop_recorder(recorder)
+    finally:
+        for service in reversed(started):
+            service.stop()
+    result = zensim("resim", str(path))
+    assert result.returncode == 0, result.stderr
+    assert "20 commands, 20 states compared" in result.stdout, result.stdout
+    assert "joint position 0 rad, base position 0 m, base orientation 0 rad" in result.stdout, result.stdout
