@@ -17,7 +17,6 @@ No zenoh here: `zensim resim` reads files without a network.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -182,12 +181,3 @@ def read_recording(path: str | Path) -> Recording:
         messages.append(Recorded(topic, relative, log_time, message))
     return Recording(robot_id, info, urdf, messages)
 
-
-def iter_topics(path: str | Path) -> Iterator[tuple[str, str, str]]:
-    """(topic, message encoding, schema name) of every channel: what `mcap info` lists."""
-    with open(path, "rb") as stream:
-        summary = make_reader(stream).get_summary()
-        assert summary is not None
-        for channel in summary.channels.values():
-            schema = summary.schemas.get(channel.schema_id)
-            yield channel.topic, channel.message_encoding, schema.name if schema else ""

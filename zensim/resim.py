@@ -93,24 +93,21 @@ def rotation_between(a_wxyz: Sequence[float], b_wxyz: Sequence[float]) -> float:
     return 2.0 * math.atan2(float(np.linalg.norm(rel[1:])), abs(float(rel[0])))
 
 
+def _instant(t: float) -> int:
+    """A sim time as a dictionary key: whole microseconds (steps are milliseconds apart)."""
+    return round(t * 1e6)
+
+
 class StateIndex:
-    """Recorded joint states and odometry by sim time (the newest of each instant: after a reset, the
-    same time comes again, and the state just before a command is the one that counts)."""
+    """Recorded joint states and odometry by sim time, within one segment (no reset inside, see
+    `one_segment`, so each instant has one state)."""
 
     def __init__(self, recording: Recording) -> None:
-        self.joints = recording.of("state/joints")
-        self.odom = recording.of("state/odom")
-
-    @staticmethod
-    def _at(items: list, t: float, before: int | None) -> object | None:
-        found = None
-        for i, item in enumerate(items if before is None else items[:before]):
-            if abs(item.sim_time_s - t) < TIME_MATCH_S:
-                found = item
-        return found
+        self.joints = {_instant(m.sim_time_s): m for m in recording.of("state/joints")}
+        self.odom = {_instant(m.sim_time_s): m for m in recording.of("state/odom")}
 
     def at(self, t: float) -> tuple[JointState | None, Odometry | None]:
-        return self._at(self.joints, t, None), self._at(self.odom, t, None)  # type: ignore[return-value]
+        return self.joints.get(_instant(t)), self.odom.get(_instant(t))
 
 
 def place(sim: Simulation, joints: JointState, odom: Odometry) -> bool:
@@ -205,9 +202,6 @@ def resim_realtime(sim: Simulation, recording: Recording) -> Divergence:
             except CommandError as exc:
                 result.notes.append(f"a command refused: {exc}")
             continue
-        if t < sim.sim_time_s - TIME_MATCH_S:  # the recording sim was reset: start over from there
-            place(sim, message, pending_odom.get(t) or sim.odometry(0))
-            continue
         n = round((t - sim.sim_time_s) / dt)
         if n > 0:
             sim.step(n)
@@ -216,23 +210,49 @@ def resim_realtime(sim: Simulation, recording: Recording) -> Divergence:
     return result
 
 
-def until_mode_change(recording: Recording) -> str | None:
-    """Keep only the part of the recording in the recorded mode: the model is rebuilt at a mode switch
-    (and a restarted sim may come up in another). Returns what was cut, or None."""
+def one_segment(recording: Recording) -> tuple[str, str | None]:
+    """Keep the longest stretch of the recording with no reset and no mode switch in it.
+
+    A reset starts sim time over and a mode switch rebuilds the model: re-simulating across either
+    would compare states of different runs. Returns the segment's mode and a note on what was left
+    out (None when the recording is one segment).
+    """
     info = recording.robot_info
-    for i, item in enumerate(recording.messages):
-        if item.relative_key == "state/sim" and info is not None and item.message.mode != info.mode:
-            recording.messages = recording.messages[:i]
-            return f"the sim switched to {item.message.mode} mode at t = {item.message.sim_time_s:.3f} s: re-simulated up to there"
-    return None
+    messages = recording.messages
+    cuts, mode, last_t = [0], info.mode if info is not None else "floating", None
+    modes = [mode]
+    for i, item in enumerate(messages):
+        if item.relative_key == "state/sim" and item.message.mode != modes[-1]:
+            cuts.append(i)
+            modes.append(item.message.mode)
+            last_t = None
+        elif item.relative_key == "state/joints":
+            t = item.message.sim_time_s
+            if last_t is not None and t < last_t - TIME_MATCH_S:
+                cuts.append(i)
+                modes.append(modes[-1])
+            last_t = t
+    cuts.append(len(messages))
+    segments = list(zip(cuts, cuts[1:], modes))
+    if len(segments) == 1:
+        return modes[0], None
+
+    def states(segment: tuple[int, int, str]) -> int:
+        return sum(1 for m in messages[segment[0]:segment[1]] if m.relative_key == "state/joints")
+
+    start, end, mode = max(segments, key=states)
+    first = next((m.message.sim_time_s for m in messages[start:end] if m.relative_key == "state/joints"), 0.0)
+    recording.messages = messages[start:end]
+    return mode, (f"the recording has {len(segments)} segments (resets or mode switches); re-simulated the longest, "
+                  f"{mode} mode from t = {first:.3f} s")
 
 
-def build_sim(settings: ResimSettings, recording: Recording) -> Simulation:
+def build_sim(settings: ResimSettings, recording: Recording, mode: str) -> Simulation:
     info = recording.robot_info
     if info is None:
         raise ValueError("the recording holds no info/robot: start `zensim record` while the sim runs")
     files = robot_files(None if settings.urdf else settings.robot, urdf=settings.urdf, control=settings.control)
-    sim = Simulation(files, info.mode, Limits(max_kp=settings.max_kp, max_kd=settings.max_kd),
+    sim = Simulation(files, mode, Limits(max_kp=settings.max_kp, max_kd=settings.max_kd),  # type: ignore[arg-type]
                      watchdog_timeout_s=info.watchdog_timeout_s, timestep_s=info.timestep_s)
     sim.watchdog_enabled = False  # wall-clock silences are not in the recording
     if tuple(sim.robot.joint_names) != tuple(info.joint_names):
@@ -249,11 +269,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         recording = read_recording(settings.file)
-        sim = build_sim(settings, recording)
+        mode, cut = one_segment(recording)
+        sim = build_sim(settings, recording, mode)
     except (OSError, ValueError) as exc:
         print(f"zensim resim: {exc}", file=sys.stderr)
         return 2
-    cut = until_mode_change(recording)
     applied = recording.of("state/applied")
     if applied:
         kind = "lockstep"
