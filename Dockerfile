@@ -12,6 +12,8 @@
 #                    final image nor its history. Example:
 #                      --build-arg EXTRA_CA_CERTS="$(cat /usr/local/share/ca-certificates/*.crt)"
 #   PIP_INDEX_URL    a PyPI mirror (optional; pip reads it from the environment)
+#   UNITREE          1: also install Cyclone DDS 0.10.2 (Debian's cyclonedds-dev and the Python binding
+#                    built against it, scripts/install-cyclonedds) for `zensim unitree`; default 0
 #
 # Layers of the final image: base | user | venv with the dependencies (changes only when
 # pyproject.toml changes) | the project itself (small; changes with the source).
@@ -43,6 +45,26 @@ RUN set -eu; \
     build_requires=$(/opt/venv/bin/python -c 'import tomllib; print(" ".join(tomllib.load(open("/src/pyproject.toml", "rb"))["build-system"]["requires"]))'); \
     /opt/venv/bin/pip install --target /opt/buildtools $build_requires wheel; \
     rm -f /tmp/ca-bundle.pem /tmp/requirements.txt
+# Optional: Cyclone DDS for `zensim unitree` (the compose profile `unitree`), the same way
+# scripts/install-system-deps + scripts/install-cyclonedds install it on a host. A separate layer, so
+# the layer above stays cached. The runtime stage installs just the C library it names.
+ARG UNITREE=0
+COPY scripts/install-cyclonedds /src/scripts/install-cyclonedds
+RUN set -eu; \
+    if [ "$UNITREE" = 1 ]; then \
+        export DEBIAN_FRONTEND=noninteractive; \
+        apt-get update -qq; \
+        headers=$(/opt/venv/bin/python -c 'import os, sysconfig; print("" if os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")) else "python3-dev")'); \
+        apt-get install -y -qq --no-install-recommends cyclonedds-dev gcc libc6-dev $headers >/dev/null; \
+        if [ -n "$EXTRA_CA_CERTS" ]; then \
+            bundle=$(/opt/venv/bin/python -c 'import pip._vendor.certifi as c; print(c.where())'); \
+            { cat "$bundle"; printf '\n%s\n' "$EXTRA_CA_CERTS"; } > /tmp/ca-bundle.pem; \
+            export PIP_CERT=/tmp/ca-bundle.pem; \
+        fi; \
+        /src/scripts/install-cyclonedds /opt/venv/bin/python; \
+        apt-cache depends cyclonedds-dev | awk '/Depends: libddsc/ {print $2}' > /opt/venv/unitree-runtime-packages; \
+        rm -f /tmp/ca-bundle.pem; \
+    fi
 
 # ---------------------------------------------------------------------------------------------
 # app: install the project itself (no dependencies, no network) and stage just its files
@@ -71,6 +93,14 @@ ENV VIRTUAL_ENV=/opt/venv \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1
 COPY --from=deps /opt/venv /opt/venv
+# The Cyclone DDS C library when the venv holds the binding (build arg UNITREE=1).
+RUN set -eu; \
+    if [ -s /opt/venv/unitree-runtime-packages ]; then \
+        export DEBIAN_FRONTEND=noninteractive; \
+        apt-get update -qq; \
+        apt-get install -y -qq --no-install-recommends $(cat /opt/venv/unitree-runtime-packages) >/dev/null; \
+        rm -rf /var/lib/apt/lists/*; \
+    fi
 COPY --from=app /stage/ /
 USER zensim
 WORKDIR /home/zensim

@@ -29,6 +29,7 @@ from .messages import (
     RobotInfo,
     SimStatus,
     StepRequest,
+    UnitreeStatus,
 )
 
 __all__ = [
@@ -38,5 +39,6 @@ __all__ = [
     "SCHEMA_VERSION", "WIRE_TYPES", "BridgeReport", "CtlReply", "Gains", "Imu", "JointState",
     "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
+    "UnitreeStatus",
     "AdvanceReply", "AppliedCommand",
 ]

@@ -16,8 +16,9 @@ from .messages import KeyInfo
 ROOT: Final = "zensim"
 DEFAULT_ROBOT_ID: Final = "g1"
 ROBOT_ID_PATTERN: Final = re.compile(r"[a-z0-9_-]+")
-SERVICES: Final = ("router", "sim", "bridge", "viz")
-"""The services `zensim up` runs, in start order; each declares `alive/{service}`."""
+SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree")
+"""Every service that declares `alive/{service}`; `zensim up` starts the first four in this order (the
+unitree adapter in place of the bridge with `--unitree`)."""
 
 CTL_VERBS: Final = ("reset", "pause", "resume", "step", "mode", "advance")
 
@@ -52,6 +53,7 @@ class Keys:
         self.urdf = f"{self.root}/info/urdf"
         self.mesh_any = f"{self.root}/info/mesh/**"
         self.alive_any = f"{self.root}/alive/*"
+        self.unitree_status = f"{self.root}/state/unitree"
         self.applied = f"{self.root}/state/applied"
         self.everything = f"{self.root}/**"
 
@@ -131,5 +133,6 @@ KEY_TABLE: Final[tuple[KeyInfo, ...]] = (
     _row("ctl/advance", "queryable", "motor_command -> advance_reply", "any client (a controller)", "sim", "on demand, clock lockstep"),
     _row("state/applied", "publication", "applied_command", "sim", "anyone (recorder, resim)", "one per lockstep advance"),
     _row("alive/{service}", "liveliness", "token", "each service (sim, bridge, viz)", "anyone", "while running"),
+    _row("state/unitree", "publication", "unitree_status", "unitree", "anyone", "status_rate_hz, default 2 Hz"),
 )
 """Keys relative to `zensim/{robot}`."""

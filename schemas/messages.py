@@ -433,6 +433,42 @@ class AdvanceReply(Message, tag="advance_reply", kw_only=True):
     """IMU reading of the new instant (as published on state/imu)."""
 
 
+# --- edge adapters ------------------------------------------------------------
+
+
+class UnitreeStatus(Message, tag="unitree_status", kw_only=True):
+    """Health of `zensim unitree`, the Unitree DDS adapter (rt/lowcmd, rt/lowstate), a few times a second."""
+
+    seq: int
+    """Counts up by one per published status."""
+    dds_domain_id: int
+    """DDS domain the adapter's participant is in."""
+    dds_interface: str
+    """Network interface DDS runs on; empty when Cyclone DDS chose."""
+    lowcmd_received: int = 0
+    """LowCmd_ samples read from rt/lowcmd since start, good or bad."""
+    lowcmd_forwarded: int = 0
+    """LowCmd_ samples turned into a MotorCommand on cmd/motors."""
+    crc_errors: int = 0
+    """LowCmd_ samples ignored because their crc did not match (as the robot ignores them)."""
+    rejected: int = 0
+    """LowCmd_ samples rejected whole: undecodable, bad mode_pr or motor mode, non-finite value, negative gain."""
+    ab_mode_commands: int = 0
+    """Accepted LowCmd_ samples with mode_pr 1 (A/B ankles), applied as pitch/roll."""
+    lowstate_published: int = 0
+    """LowState_ samples written on rt/lowstate."""
+    lowstate_rate_hz: float = 0.0
+    """LowState_ rate over the last status period, Hz (follows the sim's state_rate_hz)."""
+    motion_switcher_requests: int = 0
+    """Requests answered on rt/api/motion_switcher/request."""
+    sim_time_s: float = 0.0
+    """Sim time of the newest LowState_, s."""
+    command_age_s: float | None = None
+    """Wall time since the newest forwarded LowCmd_, s; null before the first one."""
+    last_error: str | None = None
+    """Why the most recent LowCmd_ was rejected or ignored, if one was."""
+
+
 WIRE_TYPES: tuple[type[Message], ...] = (
     JointState,
     Odometry,
@@ -448,6 +484,7 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     ModeRequest,
     CtlReply,
     RobotInfo,
+    UnitreeStatus,
     AppliedCommand,
     AdvanceReply,
 )

@@ -46,7 +46,8 @@ SAMPLES = {
         gains={"floating": {"kp": [100], "kd": [1]}, "fixed": {"kp": [50], "kd": [0.5]}},
         base_height_m={"floating": 0.85, "fixed": 0.79}, mode="floating", timestep_s=0.002, state_rate_hz=100,
         status_rate_hz=10, watchdog_timeout_s=0.5, mesh_paths=["meshes/a.STL"], keys=[msgspec.to_builtins(KEY_TABLE[0])],
-    ),
+    ),    "unitree_status": dict(seq=3, dds_domain_id=1, dds_interface="lo", lowcmd_received=10, lowcmd_forwarded=8,
+                           crc_errors=1, rejected=1, lowstate_rate_hz=500.0, command_age_s=0.002, last_error="crc mismatch"),
 }
 # Lockstep (issue 12): the command a lockstep advance applied, and ctl/advance's answer.
 SAMPLES.update({

@@ -9,10 +9,11 @@ from zensim.check import CheckSettings
 from zensim.common.settings import AMBIGUOUS_LEGACY, CommonSettings, SettingsError, env_names, load_settings
 from zensim.router import RouterSettings
 from zensim.sim.settings import SimSettings
+from zensim.unitree.settings import UnitreeSettings
 from zensim.up import UpSettings
 from zensim.viz.settings import VizSettings
 
-SERVICE_SETTINGS = (SimSettings, BridgeSettings, VizSettings, RouterSettings, CheckSettings, UpSettings)
+SERVICE_SETTINGS = (SimSettings, BridgeSettings, VizSettings, RouterSettings, CheckSettings, UpSettings, UnitreeSettings)
 """Every command's settings: a new command adds its struct here."""
 COMMON_NAMES = set(env_names(CommonSettings)) | {"ZENSIM_LOG_LEVEL"}
 

@@ -22,7 +22,7 @@ class CheckSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
 
     env_prefix: ClassVar[str] = "CHECK"
     service: str = "sim"
-    """Service whose liveliness token to look for (sim, bridge, viz, router)."""
+    """Service whose liveliness token to look for (sim, bridge, viz, router, unitree)."""
     robot_id: str = "g1"
     """Robot id."""
     timeout_s: float = 5.0

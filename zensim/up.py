@@ -1,5 +1,7 @@
 """`zensim up`: router, sim, bridge and viz as local processes, for a machine without Docker.
 
+`zensim up --unitree` runs the Unitree DDS adapter in place of the bridge (docs/unitree.md).
+
 The same four services as compose.yaml, wired the same way: a router listens
 on one endpoint and the others join it as clients with multicast scouting off.
 Ctrl-C (or SIGTERM) stops them all, newest first, and waits for each; if any
@@ -41,6 +43,8 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """Where the router listens and the other services connect."""
     viz: bool = True
     """Also run the web viewer."""
+    unitree: bool = False
+    """Run the Unitree DDS adapter (`zensim unitree`) in place of the bridge, with 500 Hz sim states: an SDK controller owns the motors."""
     log_level: str = "INFO"
     """Python log level of `zensim up` itself (the services follow ZENSIM_LOG_LEVEL)."""
     secure_dir: str | None = None
@@ -64,12 +68,17 @@ def settings_of(name: str) -> type[msgspec.Struct]:
         from zensim.bridge.settings import BridgeSettings
 
         return BridgeSettings
+    if name == "unitree":
+        from zensim.unitree.settings import UnitreeSettings
+
+        return UnitreeSettings
     from zensim.viz.settings import VizSettings
 
     return VizSettings
 
 
-def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir: str | None = None) -> dict[str, str]:
+def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir: str | None = None,
+                unitree: bool = False) -> dict[str, str]:
     """The environment of one service: no `ZENSIM_*` variable but its own, and the way to the router.
 
     A service never sees another service's variables, so `ZENSIM_BRIDGE_RATE_HZ` cannot reach the viz.
@@ -80,6 +89,8 @@ def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir
     env.update(ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
     if secure_dir:
         env["ZENSIM_SECURE_DIR"] = secure_dir
+    if unitree and name == "sim" and "ZENSIM_STATE_RATE_HZ" not in env:
+        env.setdefault("ZENSIM_SIM_STATE_RATE_HZ", "500")  # one LowState_ per 2 ms physics step
     if name == "router":
         env.update(ZENSIM_ZENOH_MODE="router", ZENSIM_ZENOH_LISTEN=endpoint)
         env.pop("ZENSIM_ZENOH_CONNECT", None)
@@ -89,8 +100,17 @@ def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir
     return env
 
 
+def _bare_unitree_flag(argv: Sequence[str] | None) -> list[str]:
+    """`--unitree` alone means `--unitree true` (every other flag takes a value)."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    for i, arg in enumerate(args):
+        if arg == "--unitree" and (i + 1 == len(args) or args[i + 1].startswith("--")):
+            args.insert(i + 1, "true")
+    return args
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    settings = settings_or_exit(UpSettings, argv, "zensim up")
+    settings = settings_or_exit(UpSettings, _bare_unitree_flag(argv), "zensim up")
     ambiguous = sorted(name for name in AMBIGUOUS_LEGACY if os.environ.get(name))
     if ambiguous:
         new = "; ".join(f"{name}: use {' or '.join(AMBIGUOUS_LEGACY[name])}" for name in ambiguous)
@@ -106,14 +126,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     if settings.secure_dir and not endpoint.startswith("tls/"):
         logger.error("with --secure-dir the router endpoint is tls/, not %s", endpoint)
         return 2
-    names = [name for name in SERVICES if settings.viz or name != "viz"]
+    names = [name for name in SERVICES if name != "unitree" and (settings.viz or name != "viz")]
+    if settings.unitree:
+        # The bridge would command every motor at 100 Hz too; the SDK controller is the one commander.
+        names[names.index("bridge")] = "unitree"
     procs: dict[str, subprocess.Popen] = {}
     stop = stop_on_signals()
     for name in names:
         # Own process group: a terminal's Ctrl-C reaches only us, and we stop the children in order.
         procs[name] = subprocess.Popen(
             [sys.executable, "-m", "zensim", name],
-            env=service_env(name, endpoint, os.environ, settings.secure_dir),
+            env=service_env(name, endpoint, os.environ, settings.secure_dir, settings.unitree),
             start_new_session=True,
         )
         logger.info("started %s (pid %d)", name, procs[name].pid)

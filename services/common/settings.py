@@ -109,6 +109,9 @@ class CommonSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
 
     env_prefix: ClassVar[str] = ""
     """The service's prefix for its own fields' variables (`SIM` -> `ZENSIM_SIM_*`)."""
+    first_release_names: ClassVar[bool] = True
+    """Whether the service existed in the first release, whose unprefixed names (`ZENSIM_RTF`) it then
+    still reads for one release; a newer service has only its prefixed names."""
 
     robot_id: str = "g1"
     """Robot id: the `{robot}` chunk of every key (zensim/{robot}/...)."""
@@ -142,13 +145,14 @@ def env_names(cls: type[msgspec.Struct]) -> dict[str, str | None]:
 def _fields_with_env(cls: type[msgspec.Struct]) -> list[tuple[str, tuple[str, ...], Any, str, str, str | None]]:
     """(flat name, path, type, help, variable, first-release variable or None) for every leaf field."""
     prefix = getattr(cls, "env_prefix", "")
+    had_first_release = getattr(cls, "first_release_names", True)
     out = []
     for name, path, typ, doc in _flat_fields(cls):
-        legacy = ENV_PREFIX + name.upper()
+        plain = ENV_PREFIX + name.upper()
         if path[0] in SHARED_FIELDS or name in SHARED_NAMES or not prefix:
-            out.append((name, path, typ, doc, legacy, None))
+            out.append((name, path, typ, doc, plain, None))
         else:
-            out.append((name, path, typ, doc, f"{ENV_PREFIX}{prefix}_{name.upper()}", legacy))
+            out.append((name, path, typ, doc, f"{ENV_PREFIX}{prefix}_{name.upper()}", plain if had_first_release else None))
     return out
 
 

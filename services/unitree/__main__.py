@@ -1,0 +1,31 @@
+"""`zensim unitree` entry point: load settings, set up logging, run the service."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+
+from zensim.common.entry import fail, serve
+from zensim.common.logs import setup_logging
+from zensim.common.settings import settings_or_exit
+
+from .settings import UnitreeSettings
+
+PROG = "zensim unitree"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    settings = settings_or_exit(UnitreeSettings, argv, PROG)
+    setup_logging(settings.log_level)
+    try:
+        from .service import run  # imports cyclonedds: say how to get it when it is missing
+    except ImportError as exc:
+        return fail(PROG, f"cannot load Cyclone DDS ({exc}): install it with scripts/install-cyclonedds "
+                          "(see docs/unitree.md)")
+    # The adapter does the bridge's job on the wire (puts cmd/motors, reads state/*): the bridge's
+    # role in a secured setup (docs/security.md).
+    return serve(PROG, settings, run, role="bridge")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,103 @@
+"""The DDS side: a Cyclone DDS participant with Unitree's topics, as unitree_sdk2 names them.
+
+    rt/lowcmd                            LowCmd_   read   (the controller's commands)
+    rt/lowstate                          LowState_ written
+    rt/api/motion_switcher/request       Request_  read
+    rt/api/motion_switcher/response      Response_ written
+
+The domain is configured as the SDK's `ChannelFactoryInitialize(domain, interface)` does it:
+an XML config naming the network interface (Cyclone DDS turns multicast off on `lo` and finds
+local participants by unicast). QoS is Cyclone's default on both sides, as in the SDK.
+
+LowCmd_/LowState_ travel as raw serialized bytes through the binding's C layer (`_clayer`, the
+calls DataReader.take and DataWriter.write make after their own, slow, (de)serialization; see
+codec.py). That layer is internal to the cyclonedds package, which is why the project pins the
+binding to exactly 0.10.2 (scripts/install-cyclonedds).
+"""
+
+from __future__ import annotations
+
+from xml.sax.saxutils import quoteattr
+
+from cyclonedds._clayer import ddspy_take, ddspy_write
+from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+
+from .idl import LowCmd_, LowState_, Request_, Response_
+
+LOWCMD_TOPIC = "rt/lowcmd"
+LOWSTATE_TOPIC = "rt/lowstate"
+MOTION_SWITCHER_REQUEST = "rt/api/motion_switcher/request"
+MOTION_SWITCHER_RESPONSE = "rt/api/motion_switcher/response"
+
+
+def domain_config(interface: str) -> str:
+    """Cyclone DDS XML for one network interface (empty: let Cyclone choose, as the SDK does)."""
+    if interface:
+        nic = f"<NetworkInterface name={quoteattr(interface)} priority=\"default\" multicast=\"default\"/>"
+    else:
+        nic = '<NetworkInterface autodetermine="true" priority="default" multicast="default"/>'
+    return (
+        '<?xml version="1.0" encoding="UTF-8" ?><CycloneDDS><Domain Id="any"><General><Interfaces>'
+        f"{nic}</Interfaces></General></Domain></CycloneDDS>"
+    )
+
+
+class UnitreeDds:
+    """The participant, its readers and writers, and one waitset over both readers.
+
+    Args:
+        domain_id: DDS domain (the robot uses 0, unitree_mujoco's examples 1).
+        interface: network interface name (e.g. lo, eth0); empty lets Cyclone choose.
+    """
+
+    def __init__(self, domain_id: int, interface: str) -> None:
+        # The Domain object must outlive the participant: it holds the configuration.
+        self.domain = Domain(domain_id, domain_config(interface))
+        self.participant = DomainParticipant(domain_id)
+        self.lowcmd_reader = DataReader(self.participant, Topic(self.participant, LOWCMD_TOPIC, LowCmd_))
+        self.lowstate_writer = DataWriter(self.participant, Topic(self.participant, LOWSTATE_TOPIC, LowState_))
+        self.request_reader = DataReader(self.participant, Topic(self.participant, MOTION_SWITCHER_REQUEST, Request_))
+        self.response_writer = DataWriter(self.participant, Topic(self.participant, MOTION_SWITCHER_RESPONSE, Response_))
+        mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
+        self.lowcmd_ready = ReadCondition(self.lowcmd_reader, mask)
+        self.request_ready = ReadCondition(self.request_reader, mask)
+        self.waitset = WaitSet(self.participant)
+        self.waitset.attach(self.lowcmd_ready)
+        self.waitset.attach(self.request_ready)
+
+    def wait(self, timeout_s: float) -> None:
+        """Block until a reader has data or `timeout_s` passes."""
+        self.waitset.wait(duration(seconds=timeout_s))
+
+    def take_lowcmd(self, max_samples: int = 64) -> list[bytes]:
+        """Serialized LowCmd_ samples that arrived (header included), oldest first."""
+        result = ddspy_take(self.lowcmd_reader._ref, max_samples)
+        if isinstance(result, int):
+            return []
+        return [data for data, info in result if info.valid_data]
+
+    def write_lowstate(self, data: bytes) -> None:
+        """Publish one serialized LowState_ (codec.encode_low_state)."""
+        ret = ddspy_write(self.lowstate_writer._ref, data)
+        if ret < 0:
+            raise OSError(f"dds_write on {LOWSTATE_TOPIC} failed with {ret}")
+
+    def take_request(self) -> Request_ | None:
+        """The next motion-switcher request (decoded by the binding; low rate).
+
+        Raises:
+            Exception: whatever the binding raises on a sample it cannot decode.
+        """
+        samples = self.request_reader.take(N=1)
+        return samples[0] if samples and isinstance(samples[0], Request_) else None
+
+    def has_request(self) -> bool:
+        return bool(self.request_ready.triggered)
+
+    def respond(self, response: Response_) -> None:
+        self.response_writer.write(response)

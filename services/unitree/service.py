@@ -1,0 +1,263 @@
+"""The Unitree adapter's wiring: Unitree's DDS topics on one side, zensim's Zenoh keys on the other.
+
+Reads:
+    rt/lowcmd (DDS)                   LowCmd_: CRC checked, validated, forwarded to cmd/motors
+    rt/api/motion_switcher/request    Request_: answered (switcher.py)
+    {robot}/state/joints, state/imu   JointState + Imu of one instant -> one LowState_
+    {robot}/info/robot                RobotInfo, queried at start (the joint order)
+Writes:
+    rt/lowstate (DDS)                 LowState_, one per sim state (500 Hz sim states: 500 Hz LowState_)
+    rt/api/motion_switcher/response   Response_
+    {robot}/cmd/motors                MotorCommand, every joint, one per accepted LowCmd_
+    {robot}/state/unitree             UnitreeStatus at status_rate_hz
+    {robot}/alive/unitree             liveliness token, once the robot is known
+
+A DDS thread waits on both DDS readers; zenoh's callback threads build LowState_. Nothing queues:
+a LowCmd_ is forwarded as soon as it is read, a LowState_ written as soon as its pair is complete.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import zenoh
+
+from zensim.common.logs import RateLimitedLog
+from zensim.common.wire import TypedPublisher, payload_of
+from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, MotorCommand, RobotInfo, UnitreeStatus
+
+from . import switcher
+from .codec import NUM_MOTORS, CodecError, decode_low_cmd
+from .dds import UnitreeDds
+from .idl import RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_
+from .lowlevel import LowCmdError, LowStateBuilder, motor_command
+from .settings import UnitreeSettings
+
+logger = logging.getLogger("zensim.unitree")
+
+RETRY_PAUSE_S = 0.2
+DDS_WAIT_S = 0.1
+"""Longest the DDS thread blocks before it looks at the stop flag."""
+MAX_ERROR_CHARS = 200
+
+
+def fetch_joint_names(session: zenoh.Session, keys: Keys, timeout_s: float, stop: threading.Event) -> tuple[str, ...] | None:
+    """Ask the sim's info/robot until it answers; the joint order is the motor order.
+
+    Returns:
+        The joint names, or None when `stop` was set first.
+    """
+    codec = Codec(RobotInfo)
+    waiting = RateLimitedLog(logger, 10.0)
+    while not stop.is_set():
+        for reply in session.get(keys.robot_info, timeout=timeout_s):
+            if reply.ok is None:
+                continue
+            try:
+                return codec.decode(*payload_of(reply.ok)).joint_names
+            except DecodeError as exc:
+                waiting.warning("unusable RobotInfo on %s: %s", keys.robot_info, exc)
+        waiting.warning("no sim answers on %s yet; retrying", keys.robot_info)
+        stop.wait(RETRY_PAUSE_S)
+    return None
+
+
+class Counters:
+    """What the status reports; updated under the adapter's lock."""
+
+    def __init__(self) -> None:
+        self.lowcmd_received = 0
+        self.lowcmd_forwarded = 0
+        self.crc_errors = 0
+        self.rejected = 0
+        self.ab_mode_commands = 0
+        self.lowstate_published = 0
+        self.motion_switcher_requests = 0
+        self.sim_time_s = 0.0
+        self.last_command = None  # monotonic time of the newest forwarded LowCmd_
+        self.last_error: str | None = None
+
+
+class UnitreeAdapter:
+    """The running adapter (see the module docstring)."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, joint_names: tuple[str, ...],
+                 settings: UnitreeSettings, dds: UnitreeDds) -> None:
+        self._joint_names = joint_names
+        self._settings = settings
+        self._dds = dds
+        self._lock = threading.Lock()
+        self.counters = Counters()
+        self._builder = LowStateBuilder(len(joint_names), settings.mode_machine)
+        self._joints_codec = Codec(JointState)
+        self._imu_codec = Codec(Imu)
+        self._reject_log = RateLimitedLog(logger, 1.0)
+        self._state_log = RateLimitedLog(logger, 5.0)
+        self._ab_logged = False
+        self._motors = TypedPublisher(session, keys.motors, MotorCommand)
+        self._status = TypedPublisher(session, keys.unitree_status, UnitreeStatus)
+        self._subscribers = [
+            session.declare_subscriber(keys.joints, self._on_joints),
+            session.declare_subscriber(keys.imu, self._on_imu),
+        ]
+
+    # --- zensim -> DDS (zenoh threads) -------------------------------------------
+
+    def _on_joints(self, sample: zenoh.Sample) -> None:
+        self._on_state(sample, self._joints_codec, "joints")
+
+    def _on_imu(self, sample: zenoh.Sample) -> None:
+        self._on_state(sample, self._imu_codec, "imu")
+
+    def _on_state(self, sample: zenoh.Sample, codec: Codec, which: str) -> None:
+        try:
+            message = codec.decode(*payload_of(sample))
+            with self._lock:
+                data = getattr(self._builder, which)(message)
+                if data is None:
+                    return
+                self._dds.write_lowstate(data)
+                self.counters.lowstate_published += 1
+                self.counters.sim_time_s = message.sim_time_s
+        except (DecodeError, ValueError, OSError) as exc:
+            self._state_log.warning("cannot turn state/%s into LowState_: %s", which, exc)
+
+    # --- DDS -> zensim (the DDS thread) --------------------------------------------
+
+    def handle_lowcmd(self, data: bytes) -> None:
+        """Check one serialized LowCmd_ and forward it, or count why not."""
+        command = None
+        error = None
+        crc_error = False
+        try:
+            low_cmd = decode_low_cmd(data)
+            if not low_cmd.crc_ok:
+                crc_error = True
+                error = f"crc mismatch (got {low_cmd.crc:#010x}): ignored, as the robot does"
+            else:
+                command = motor_command(low_cmd, self._joint_names)
+        except (CodecError, LowCmdError) as exc:
+            error = str(exc)[:MAX_ERROR_CHARS]
+        with self._lock:
+            c = self.counters
+            c.lowcmd_received += 1
+            if command is None:
+                if crc_error:
+                    c.crc_errors += 1
+                else:
+                    c.rejected += 1
+                c.last_error = error
+            else:
+                c.lowcmd_forwarded += 1
+                c.last_command = time.monotonic()
+                if command.ab_mode:
+                    c.ab_mode_commands += 1
+                self._builder.mode_pr = 1 if command.ab_mode else 0
+        if command is None:
+            self._reject_log.warning("LowCmd_ on rt/lowcmd not applied: %s", error)
+            return
+        if command.ab_mode and not self._ab_logged:
+            self._ab_logged = True
+            logger.warning("LowCmd_ with mode_pr 1 (A/B ankles): zensim simulates pitch/roll ankles and "
+                           "applies the ankle targets as pitch/roll")
+        self._motors.put(command.command)
+
+    def handle_requests(self) -> None:
+        """Answer every waiting motion-switcher request."""
+        while True:
+            try:
+                request = self._dds.take_request()
+            except Exception as exc:  # the binding raises assorted errors on an undecodable sample
+                # The sample is taken (gone) either way; the rest wait for the next wake-up, so a
+                # reader that keeps failing cannot spin this thread.
+                self._reject_log.warning("undecodable motion-switcher request: %s", str(exc)[:MAX_ERROR_CHARS])
+                return
+            if request is None:
+                return
+            identity = request.header.identity
+            code, data = switcher.answer(identity.api_id)
+            with self._lock:
+                self.counters.motion_switcher_requests += 1
+            logger.info("motion switcher: api %d -> code %d %s", identity.api_id, code, data)
+            if request.header.policy.noreply:
+                continue
+            self._dds.respond(Response_(
+                header=ResponseHeader_(identity=RequestIdentity_(id=identity.id, api_id=identity.api_id),
+                                       status=ResponseStatus_(code=code)),
+                data=data, binary=[],
+            ))
+
+    def dds_loop(self, stop: threading.Event) -> None:
+        """The DDS thread: wait for samples, handle them, until `stop`."""
+        while not stop.is_set():
+            self._dds.wait(DDS_WAIT_S)
+            for data in self._dds.take_lowcmd():
+                self.handle_lowcmd(data)
+            if self._dds.has_request():
+                self.handle_requests()
+
+    # --- status ----------------------------------------------------------------------
+
+    def publish_status(self, seq: int, rate_hz: float) -> None:
+        with self._lock:
+            c = self.counters
+            status = UnitreeStatus(
+                seq=seq, dds_domain_id=self._settings.domain_id,
+                dds_interface=self._settings.interface,
+                lowcmd_received=c.lowcmd_received, lowcmd_forwarded=c.lowcmd_forwarded,
+                crc_errors=c.crc_errors, rejected=c.rejected, ab_mode_commands=c.ab_mode_commands,
+                lowstate_published=c.lowstate_published, lowstate_rate_hz=rate_hz,
+                motion_switcher_requests=c.motion_switcher_requests, sim_time_s=c.sim_time_s,
+                command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
+                last_error=c.last_error,
+            )
+        self._status.put(status)
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        self._motors.undeclare()
+        self._status.undeclare()
+
+
+def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event) -> int:
+    """Learn the robot's joints, open DDS, bridge until `stop` is set.
+
+    Returns:
+        The process exit code.
+    """
+    keys = Keys(settings.robot_id)
+    logger.info("asking the sim on %s", keys.robot_info)
+    joint_names = fetch_joint_names(session, keys, settings.info_timeout_s, stop)
+    if joint_names is None:
+        return 0
+    if len(joint_names) > NUM_MOTORS:
+        logger.error("the robot has %d joints; LowCmd_ has %d motor slots", len(joint_names), NUM_MOTORS)
+        return 2
+    dds = UnitreeDds(settings.domain_id, settings.interface)
+    adapter = UnitreeAdapter(session, keys, joint_names, settings, dds)
+    dds_thread = threading.Thread(target=adapter.dds_loop, args=(stop,), name="dds", daemon=True)
+    dds_thread.start()
+    token = session.liveliness().declare_token(keys.alive("unitree"))
+    logger.info("unitree adapter up: %d motors <-> %s; DDS domain %d on %s", len(joint_names), keys.root,
+                settings.domain_id, settings.interface or "(auto)")
+    period_s = 1.0 / settings.status_rate_hz
+    seq = 0
+    last_count, last_time = 0, time.monotonic()
+    try:
+        while not stop.wait(period_s):
+            now = time.monotonic()
+            count = adapter.counters.lowstate_published
+            adapter.publish_status(seq, (count - last_count) / (now - last_time))
+            last_count, last_time = count, now
+            seq += 1
+    finally:
+        token.undeclare()
+        dds_thread.join(2 * DDS_WAIT_S + 1.0)
+        adapter.close()
+    c = adapter.counters
+    logger.info("%d LowCmd_ read, %d forwarded, %d crc errors, %d rejected; %d LowState_ written",
+                c.lowcmd_received, c.lowcmd_forwarded, c.crc_errors, c.rejected, c.lowstate_published)
+    return 0
