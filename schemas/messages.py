@@ -399,9 +399,9 @@ class RobotInfo(Message, tag="robot_info", kw_only=True):
 class AppliedCommand(Message, tag="applied_command", kw_only=True):
     """A motor command the lockstep sim advanced on: what it applied, from when, for how long.
 
-    Published before the states it led to, so a recording holds every command
-    (those sent on cmd/motors and those carried by ctl/advance) at its exact sim
-    time, which is what re-simulation needs.
+    Published right after the states it led to, so a recording holds every
+    command (those sent on cmd/motors and those carried by ctl/advance) at its
+    exact sim time, which is what re-simulation needs.
     """
 
     sim_time_s: float

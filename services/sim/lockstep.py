@@ -73,12 +73,12 @@ class Lockstep:
         self.pub_applied = TypedPublisher(service.session, keys.applied, AppliedCommand)
         self.queryable = service.session.declare_queryable(self.advance_key, self._on_advance)
 
-    # --- zenoh callbacks: decode, hand over --------------------------------------------------
+    # --- the two ways in: a command on cmd/motors, a ctl/advance query ----------------------------
 
     def submit(self, command: MotorCommand) -> None:
         """A command from cmd/motors (its subscriber's callback thread): step and publish."""
         with self.lock:
-            self._publish(self.advance(command, hold_when_paused=True))
+            self._publish(self.advance(command, hold_when_paused=True, key=self.service.keys.motors))
 
     def _on_advance(self, query: zenoh.Query) -> None:
         service, sim = self.service, self.service.sim
@@ -101,7 +101,7 @@ class Lockstep:
             return
         with self.lock:
             try:
-                advanced = self.advance(command, hold_when_paused=False)
+                advanced = self.advance(command, hold_when_paused=False, key=self.advance_key)
             except Exception as exc:  # a failed step must not leave the client without an answer
                 logger.exception("ctl/advance failed")
                 advanced = Advanced(AdvanceReply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}")))
@@ -112,9 +112,9 @@ class Lockstep:
     def _answer(self, query: zenoh.Query, message: AdvanceReply, fmt: str) -> None:
         reply(query, self.advance_key, message, fmt, self._reply_codec)  # type: ignore[arg-type]
 
-    # --- the loop thread -----------------------------------------------------------------------
+    # --- stepping (the caller holds `lock`) ------------------------------------------------------
 
-    def advance(self, command: MotorCommand, hold_when_paused: bool) -> Advanced:
+    def advance(self, command: MotorCommand, hold_when_paused: bool, key: str) -> Advanced:
         """Apply `command` and run `lockstep_steps` physics steps (the caller holds `lock`).
 
         While paused, a command from cmd/motors is held (ctl/step then runs it) and one from
@@ -127,7 +127,7 @@ class Lockstep:
         try:
             sim.accept_command(command)
         except CommandError as exc:
-            error = service.command_refusals.refuse(self.advance_key, str(exc))
+            error = service.command_refusals.refuse(key, str(exc))
             sim.reject(error)
             return Advanced(AdvanceReply(ok=False, error=error, sim_time_s=sim.sim_time_s, steps=sim.steps))
         if service.paused:
@@ -158,8 +158,10 @@ class Lockstep:
         self.pub_applied.put(advanced.applied)
         service._check_fall()
 
+    # --- the loop thread: ctl requests and the status ---------------------------------------------
+
     def run(self) -> None:
-        """Serve commands and ctl requests until the stop event; publish SimStatus on its wall-clock rate."""
+        """Run ctl requests until the stop event; publish SimStatus at its wall-clock rate."""
         service, sim = self.service, self.service.sim
         status_period_s = 1.0 / service.settings.status_rate_hz
         now = time.monotonic()
