@@ -10,6 +10,8 @@ from .topics import TOPICS, Topic, protocol_table
 from .messages import (
     SCHEMA_VERSION,
     WIRE_TYPES,
+    AdvanceReply,
+    AppliedCommand,
     BridgeReport,
     CtlReply,
     Gains,
@@ -39,4 +41,5 @@ __all__ = [
     "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
     "UnitreeStatus",
+    "AdvanceReply", "AppliedCommand",
 ]

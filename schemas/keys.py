@@ -20,7 +20,7 @@ SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree")
 """Every service that declares `alive/{service}`; `zensim up` starts the first four in this order (the
 unitree adapter in place of the bridge with `--unitree`)."""
 
-CTL_VERBS: Final = ("reset", "pause", "resume", "step", "mode")
+CTL_VERBS: Final = ("reset", "pause", "resume", "step", "mode", "advance")
 
 
 def check_robot_id(robot: str) -> str:
@@ -54,6 +54,8 @@ class Keys:
         self.mesh_any = f"{self.root}/info/mesh/**"
         self.alive_any = f"{self.root}/alive/*"
         self.unitree_status = f"{self.root}/state/unitree"
+        self.applied = f"{self.root}/state/applied"
+        self.everything = f"{self.root}/**"
 
     def of(self, topic: Topic) -> str:
         """The full key of a topic without placeholders (`state/joints` -> `zensim/g1/state/joints`)."""

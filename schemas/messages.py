@@ -165,6 +165,10 @@ class SimStatus(Message, tag="sim_status", kw_only=True):
     """Why the sim last reset itself (a broken physics state or a fall), if it did."""
     rejected_requests: int = 0
     """ctl queries refused since start (malformed, unknown fields, wildcard keys, out of bounds)."""
+    clock: Literal["realtime", "lockstep"] = "realtime"
+    """`realtime` (paced by `target_rtf`) or `lockstep` (each motor command advances the physics)."""
+    waiting: bool = False
+    """Lockstep: true while the sim stands still waiting for the next motor command."""
 
 
 # --- commands -------------------------------------------------------------
@@ -383,6 +387,50 @@ class RobotInfo(Message, tag="robot_info", kw_only=True):
     """The protocol table."""
     run_id: str = ""
     """Random id of this run of the sim process, as in SimStatus.run_id."""
+    clock: Literal["realtime", "lockstep"] = "realtime"
+    """The sim's clock, as in SimStatus.clock."""
+    lockstep_steps: int = 0
+    """Lockstep: physics steps each motor command advances (0 under the realtime clock)."""
+
+
+# --- lockstep (clock = lockstep) ---------------------------------------------
+
+
+class AppliedCommand(Message, tag="applied_command", kw_only=True):
+    """A motor command the lockstep sim advanced on: what it applied, from when, for how long.
+
+    Published right after the states it led to, so a recording holds every
+    command (those sent on cmd/motors and those carried by ctl/advance) at its
+    exact sim time, which is what re-simulation needs.
+    """
+
+    sim_time_s: float
+    """Simulation time the command took effect at (before the steps), s."""
+    seq: int
+    """Counts up by one per applied command; resets only when the sim restarts."""
+    steps: int
+    """Physics steps run with this command (the sim's `lockstep_steps`)."""
+    command: MotorCommand
+    """The command as received (before clamping, which the sim repeats deterministically)."""
+
+
+class AdvanceReply(Message, tag="advance_reply", kw_only=True):
+    """The answer to ctl/advance: the states of the new instant, all three together."""
+
+    ok: bool
+    """True when the command was accepted and the physics advanced."""
+    error: str | None = None
+    """Why not, when `ok` is false (nothing was applied then)."""
+    sim_time_s: float = 0.0
+    """Simulation time after the request, s."""
+    steps: int = 0
+    """Physics steps since the last reset, after the request."""
+    joints: JointState | None = None
+    """Joint state of the new instant (as published on state/joints)."""
+    odom: Odometry | None = None
+    """Base odometry of the new instant (as published on state/odom)."""
+    imu: Imu | None = None
+    """IMU reading of the new instant (as published on state/imu)."""
 
 
 # --- edge adapters ------------------------------------------------------------
@@ -437,5 +485,7 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     CtlReply,
     RobotInfo,
     UnitreeStatus,
+    AppliedCommand,
+    AdvanceReply,
 )
 """Every top-level message type, in the order the docs list them."""

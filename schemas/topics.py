@@ -13,6 +13,8 @@ from dataclasses import dataclass
 from typing import Final, Literal
 
 from .messages import (
+    AdvanceReply,
+    AppliedCommand,
     BridgeReport,
     CtlReply,
     Imu,
@@ -113,6 +115,11 @@ CTL_RESUME: Final = Topic("ctl/resume", "queryable", "any client", "sim", "on de
 CTL_STEP: Final = Topic("ctl/step", "queryable", "any client", "sim", "on demand, while paused", StepRequest, CtlReply,
                         note="(after the steps ran)")
 CTL_MODE: Final = Topic("ctl/mode", "queryable", "any client", "sim", "on demand", ModeRequest, CtlReply)
+CTL_ADVANCE: Final = Topic("ctl/advance", "queryable", "any client (a controller)", "sim",
+                           "on demand, under `clock: lockstep`", MotorCommand, AdvanceReply,
+                           note="(after the steps ran)")
+APPLIED: Final = Topic("state/applied", "publication", "sim", "anyone (the recorder, resim)",
+                       "one per lockstep advance", AppliedCommand)
 # --- description ------------------------------------------------------------------
 ROBOT_INFO: Final = Topic("info/robot", "queryable", "sim", "anyone", "on demand", RobotInfo,
                           note="(JSON for `?format=json` or a JSON query payload)")
@@ -125,7 +132,7 @@ ALIVE: Final = Topic("alive/{service}", "liveliness", "each service: sim, bridge
 TOPICS: Final[tuple[Topic, ...]] = (
     JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
-    CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE,
+    CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
     ROBOT_INFO, URDF, MESH, ALIVE,
 )
 """Every topic, in the order the docs list them."""

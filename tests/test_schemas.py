@@ -49,6 +49,12 @@ SAMPLES = {
     ),    "unitree_status": dict(seq=3, dds_domain_id=1, dds_interface="lo", lowcmd_received=10, lowcmd_forwarded=8,
                            crc_errors=1, rejected=1, lowstate_rate_hz=500.0, command_age_s=0.002, last_error="crc mismatch"),
 }
+# Lockstep (issue 12): the command a lockstep advance applied, and ctl/advance's answer.
+SAMPLES.update({
+    "applied_command": dict(sim_time_s=0.02, seq=2, steps=10, command=SAMPLES["motor_command"]),
+    "advance_reply": dict(ok=True, sim_time_s=0.04, steps=20, joints=SAMPLES["joint_state"], odom=SAMPLES["odometry"],
+                          imu=SAMPLES["imu"]),
+})
 
 
 def tag(message_type: type) -> str:

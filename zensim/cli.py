@@ -9,6 +9,7 @@
     zensim robot    build or inspect a robot model
     zensim secure   make the credentials of a secured network (secure init DIR)
     zensim unitree  Unitree's DDS LowCmd/LowState for SDK controllers
+    zensim record   record a robot's samples into MCAP; replay, resim: play or re-simulate one
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
 flags; each service's README has its table (services/*/README.md, the
@@ -33,6 +34,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "robot": ("zensim.robots.cli", "build or inspect a robot model"),
     "secure": ("zensim.secure", "make TLS certificates, passwords and role configs (secure init DIR)"),
     "unitree": ("zensim.unitree.__main__", "run the Unitree DDS adapter (unitree_sdk2's rt/lowcmd, rt/lowstate)"),
+    "record": ("zensim.record", "record every sample of a robot into an MCAP file"),
+    "replay": ("zensim.replay", "publish a recording's states again (the viewer draws the past run)"),
+    "resim": ("zensim.resim", "re-simulate a recording's commands and report the divergence"),
 }
 
 

@@ -50,7 +50,7 @@ def _rule(rule_id: str, flow: str, messages: list[str], keys: list[str]) -> dict
 # every role so a publisher learns who listens; what is forwarded as data is restricted per role.
 ROLE_RULES: Final[dict[str, list[tuple[str, list[str], list[str]]]]] = {
     "sim": [
-        ("ingress", ["put"], ["state/joints", "state/odom", "state/imu", "state/sim"]),
+        ("ingress", ["put"], ["state/joints", "state/odom", "state/imu", "state/sim", "state/applied"]),
         ("ingress", ["declare_queryable", "reply"], ["ctl/**", "info/**"]),
         ("ingress", ["declare_subscriber"], ["cmd/motors"]),
         ("ingress", ["liveliness_token"], ["alive/sim"]),
@@ -67,10 +67,10 @@ ROLE_RULES: Final[dict[str, list[tuple[str, list[str], list[str]]]]] = {
     ],
     "viz": [
         ("ingress", ["put"], ["cmd/joints"]),
-        ("ingress", ["declare_subscriber"], ["state/**"]),
+        ("ingress", ["declare_subscriber"], ["state/**", "cmd/motors"]),  # cmd/motors: the plot's targets
         ("ingress", ["query"], ["info/**", "ctl/**"]),
         ("ingress", ["liveliness_token"], ["alive/viz"]),
-        ("egress", ["put"], ["state/**"]),
+        ("egress", ["put"], ["state/**", "cmd/motors"]),
         ("egress", ["reply"], ["info/**", "ctl/**"]),
     ],
     "operator": [

@@ -6,6 +6,7 @@ Writes:  state/joints, state/odom, state/imu (state_rate_hz, sim time),
 Serves:  ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode (-> CtlReply),
          info/robot (RobotInfo), info/urdf (URDF text), info/mesh/{path} (mesh bytes)
 Token:   alive/sim
+Clock:   `clock lockstep` hands the loop to lockstep.py (each command advances; ctl/advance; state/applied)
 
 One thread owns the physics: the loop below. Zenoh callbacks only decode,
 validate and hand over: commands are merged into the simulation's held
@@ -120,6 +121,11 @@ class SimService:
         self.pub_odom = TypedPublisher.of(session, keys, topics.ODOM)
         self.pub_imu = TypedPublisher.of(session, keys, topics.IMU)
         self.pub_status = TypedPublisher.of(session, keys, topics.SIM_STATUS)
+        self.lockstep = None
+        if settings.clock == "lockstep":
+            from .lockstep import Lockstep  # imported here: lockstep.py builds on this module
+
+            self.lockstep = Lockstep(self)
         # Commands arrive through a small ring kept by zenoh (in Rust): when a flood outruns the
         # decoding thread, the oldest samples are dropped there, before they cost the GIL anything,
         # and the newest command never waits behind a backlog (a plain callback queues 256 samples
@@ -149,7 +155,9 @@ class SimService:
             if mode not in self._robots_by_mode:
                 self._robots_by_mode[mode] = build(sim.files, mode)  # type: ignore[arg-type]
         info = sim.robot_info(self.keys, self.settings.state_rate_hz, self.settings.status_rate_hz, self._robots_by_mode)
-        self._info = msgspec.structs.replace(info, run_id=self.run_id)
+        self._info = msgspec.structs.replace(
+            info, run_id=self.run_id, clock=self.settings.clock,
+            lockstep_steps=self.settings.lockstep_steps if self.settings.clock == "lockstep" else 0)
 
     # info/* only describes: it may answer a wildcard query, always on its own key (a reply on
     # `zensim/g1/**` would not name what it is). Its payload is never read (JSON is asked for by
@@ -202,6 +210,9 @@ class SimService:
     def _on_command(self, sample: zenoh.Sample) -> None:
         try:
             command = decode_input(sample, self.command_codec, self.input_cap_bytes)
+            if self.lockstep is not None:  # lockstep: each command advances, on this thread
+                self.lockstep.submit(command)
+                return
             self.sim.accept_command(command)
         except (DecodeError, CommandError) as exc:
             self.sim.reject(self.command_refusals.refuse(sample.key_expr, str(exc)))
@@ -343,6 +354,8 @@ class SimService:
                 physics_resets=self.physics_resets,
                 last_reset_reason=self.last_reset_reason,
                 rejected_requests=self.request_refusals.count,
+                clock=self.settings.clock,
+                waiting=self.lockstep is not None and self.lockstep.waiting,
             )
         )
 
@@ -375,6 +388,9 @@ class SimService:
         # after the switch interval (5 ms by default): the physics loop, waking every 2 ms step,
         # then waits up to 5 ms each time. A short interval bounds that wait.
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+        if self.lockstep is not None:
+            self.lockstep.run()
+            return
         sim, settings = self.sim, self.settings
         publish_every = max(1, round(1.0 / (settings.state_rate_hz * sim.timestep_s)))
         publish_period_s = 1.0 / settings.state_rate_hz
@@ -427,6 +443,8 @@ class SimService:
         self.token.undeclare()
         self._commands.undeclare()
         self._command_thread.join(1.0)
+        if self.lockstep is not None:
+            self.lockstep.close()
         for entity in self._declared:
             entity.undeclare()
         for publisher in (self.pub_joints, self.pub_odom, self.pub_imu, self.pub_status):

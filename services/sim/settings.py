@@ -44,3 +44,7 @@ class SimSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     """Largest accepted kd in a motor command, N m s/rad."""
     paused: bool = False
     """Start paused (step with ctl/step, go with ctl/resume)."""
+    clock: Literal["realtime", "lockstep"] = "realtime"
+    """realtime (paced by rtf) or lockstep (each motor command advances lockstep_steps, then time stands still)."""
+    lockstep_steps: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 10
+    """Lockstep: physics steps each motor command advances (10 = 20 ms at the G1's 2 ms step)."""

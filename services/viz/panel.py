@@ -16,6 +16,7 @@ from zensim.schemas import JointTargets
 
 PAGE_CTL_VERBS: Final = ("reset", "pause", "resume", "step")
 MODES: Final = ("floating", "fixed")
+MAX_PLOT_JOINTS: Final = 6
 
 
 class PanelError(ValueError):
@@ -27,6 +28,13 @@ class Ctl:
     verb: str
     """reset, pause, resume, step or mode."""
     mode: str | None = None
+
+
+@dataclass(frozen=True)
+class PlotRequest:
+    """The joints a page wants plotted; none means plotting is off."""
+
+    joints: tuple[str, ...]
 
 
 class JointLimits:
@@ -43,7 +51,7 @@ class JointLimits:
         return min(max(value, self.lower[i]), self.upper[i])
 
 
-def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets | Ctl:
+def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets | Ctl | PlotRequest:
     """Turn one decoded JSON message from the page into a command.
 
     Args:
@@ -52,7 +60,8 @@ def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets 
 
     Returns:
         JointTargets for `{"type": "targets", "names": [...], "q": [...]}`,
-        Ctl for `{"type": "ctl", "verb": ...}` and `{"type": "mode", "mode": ...}`.
+        Ctl for `{"type": "ctl", "verb": ...}` and `{"type": "mode", "mode": ...}`,
+        PlotRequest for `{"type": "plot", "joints": [...]}` (at most MAX_PLOT_JOINTS, [] stops).
 
     Raises:
         PanelError: anything malformed or unknown.
@@ -86,4 +95,16 @@ def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets 
         if mode not in MODES:
             raise PanelError(f"mode must be one of {MODES}")
         return Ctl(verb="mode", mode=mode)
+    if kind == "plot":
+        joints = data.get("joints")
+        if not isinstance(joints, list) or len(joints) > MAX_PLOT_JOINTS:
+            raise PanelError(f"plot needs a list `joints` of at most {MAX_PLOT_JOINTS} joints")
+        if joints and limits is None:
+            raise PanelError("no robot description yet")
+        for name in joints:
+            if not isinstance(name, str) or limits is None or name not in limits.index:
+                raise PanelError(f"unknown joint {name!r}")
+        if len(set(joints)) != len(joints):
+            raise PanelError("plot names a joint twice")
+        return PlotRequest(joints=tuple(joints))
     raise PanelError(f"unknown message type {kind!r}")

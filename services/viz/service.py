@@ -4,6 +4,7 @@ Reads:
     state/joints (JointState), state/odom (Odometry): the robot's pose, latest wins.
     state/targets (JointTargets): the ghost (the commanded pose the bridge holds).
     state/sim (SimStatus): the status panel.
+    state/joints, cmd/motors, state/targets (every sample): the plot panel (plots.py).
     alive/* (liveliness): which services are up; `alive/sim` appearing triggers a description fetch.
     info/robot, info/urdf, info/mesh/{path} (gets): the description, fetched again after each sim start.
 Writes:
@@ -18,6 +19,7 @@ descriptions; ctl gets run in a small executor so a slow sim never blocks the pa
 
 from __future__ import annotations
 
+import json
 import logging
 import socket
 import threading
@@ -45,6 +47,7 @@ from zensim.schemas import (
     JointTargets,
     Keys,
     ModeRequest,
+    MotorCommand,
     Odometry,
     PauseRequest,
     ResetRequest,
@@ -57,7 +60,7 @@ from zensim.schemas import (
 )
 from zensim.schemas.bounds import STATE_CAP_BYTES
 
-from . import panel, scene
+from . import panel, plots, scene
 from .settings import VizSettings
 from .access import WILDCARDS, Guard
 from .web import Client, Hub, make_app
@@ -65,6 +68,7 @@ from .web import Client, Hub, make_app
 logger = logging.getLogger(__name__)
 
 STATUS_PERIOD_S = 0.2
+PLOT_PERIOD_S = 0.1
 DESCRIPTION_RETRY_S = 2.0
 
 
@@ -108,13 +112,20 @@ class VizService:
         self._fetch_wanted = threading.Event()
         self._last_drawn = (-1, -1, -1)
 
-        self._codecs = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus, RobotInfo, CtlReply)}
+        self._codecs = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus, RobotInfo, CtlReply, MotorCommand)}
+        self.plot_feed = plots.PlotFeed()
+        self.plot_subs: dict[Client, plots.Subscription] = {}
         self.cmd_publisher = TypedPublisher.of(session, self.keys, topics.JOINT_TARGETS)
         self._declared = [
             session.declare_subscriber(self.keys.joints, self._store(self.joints, JointState)),
             session.declare_subscriber(self.keys.odom, self._store(self.odom, Odometry)),
             session.declare_subscriber(self.keys.sim_status, self._store(self.status, SimStatus)),
             session.liveliness().declare_subscriber(self.keys.alive_any, self._on_alive, history=True),
+        ]
+        self._declared += [
+            session.declare_subscriber(self.keys.joints, self._plot_sample(JointState)),
+            session.declare_subscriber(self.keys.motors, self._plot_sample(MotorCommand)),
+            session.declare_subscriber(self.keys.bridge_targets, self._plot_sample(JointTargets)),
         ]
         if settings.ghost:
             self._declared.append(
@@ -130,6 +141,23 @@ class VizService:
                 slot.set(decode_input(sample, codec, STATE_CAP_BYTES))
             except DecodeError as exc:
                 self.bad_input.warning("dropped a sample on %s: %s", bounded(str(sample.key_expr), 120), exc)
+
+        return callback
+
+    def _plot_sample(self, message_type: type) -> Any:
+        """Every sample (not just the newest) feeds the plots; bad ones are dropped like the others."""
+        codec, feed = self._codecs[message_type], self.plot_feed
+
+        def callback(sample: zenoh.Sample) -> None:
+            try:
+                message = decode_input(sample, codec, STATE_CAP_BYTES)
+            except DecodeError as exc:
+                self.bad_input.warning("dropped a sample on %s: %s", bounded(str(sample.key_expr), 120), exc)
+                return
+            if isinstance(message, JointState):
+                feed.on_state(message.sim_time_s, message.q, message.tau)
+            else:
+                feed.on_command(message.names, message.q)
 
         return callback
 
@@ -226,6 +254,8 @@ class VizService:
     def _install(self, drawing: scene.Drawing) -> None:
         self.drawing = drawing
         self.limits = panel.JointLimits(drawing.joint_names, drawing.lower, drawing.upper)
+        self.plot_feed.set_joints(drawing.joint_names)
+        self.plot_subs.clear()  # pages pick their joints again for the new robot
         self.description_state = "ok"
         self._last_drawn = (-1, -1, -1)
         self.hub.set_scene(drawing.commands, drawing.meta)
@@ -283,6 +313,23 @@ class VizService:
         }
         self.hub.publish_json(message)
 
+    def publish_plots(self) -> None:
+        """Send each plotting page what it has not had, once its previous batch was written."""
+        for client in list(self.plot_subs):
+            if client not in self.hub.clients:
+                del self.plot_subs[client]
+                continue
+            sub = self.plot_subs[client]
+            if sub.busy:
+                continue
+            batch = self.plot_feed.batch(sub)
+            if batch is None:
+                continue
+            future = client.send(json.dumps(batch), binary=False)
+            if future is not None:
+                sub.busy = True
+                future.add_done_callback(lambda _f, s=sub: setattr(s, "busy", False))
+
     # --- browser input -----------------------------------------------------------------
     def _on_client_message(self, client: Client, data: Any) -> None:
         try:
@@ -292,6 +339,12 @@ class VizService:
             return
         if isinstance(command, JointTargets):
             self.cmd_publisher.put(command)
+            return
+        if isinstance(command, panel.PlotRequest):
+            if command.joints:
+                self.plot_subs[client] = self.plot_feed.subscribe(command.joints)
+            else:
+                self.plot_subs.pop(client, None)
             return
         future = self.loop.run_in_executor(self.executor, self._ctl, command)
         future.add_done_callback(lambda f: self.hub.reply(client, f.result()))
@@ -353,6 +406,7 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
     fetcher.start()
     tornado.ioloop.PeriodicCallback(service.tick, 1000.0 / settings.rate_hz).start()
     tornado.ioloop.PeriodicCallback(service.publish_status, STATUS_PERIOD_S * 1000).start()
+    tornado.ioloop.PeriodicCallback(service.publish_plots, PLOT_PERIOD_S * 1000).start()
     tornado.ioloop.PeriodicCallback(lambda: stop.is_set() and service.loop.stop(), 50).start()
     try:
         service.loop.start()

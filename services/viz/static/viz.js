@@ -78,6 +78,8 @@ function onJson(msg) {
     state.lastReply = msg;
     $("reply").textContent = `${msg.verb}: ${msg.ok ? "ok" : "failed: " + (msg.error || "")}`;
     $("reply").className = msg.ok ? "small" : "small bad";
+  } else if (msg.type === "plot") {
+    onPlot(msg);
   } else if (msg.type === "error") {
     state.lastError = msg.error;
     $("reply").textContent = msg.error; $("reply").className = "small bad";
@@ -92,6 +94,7 @@ function onRobot(msg) {
   ghostVisible = false;
   $("robot-name").textContent = msg.name;
   buildSliders(msg.joints);
+  buildPlotChoices(msg.joints);
 }
 
 function buildSliders(joints) {
@@ -138,6 +141,7 @@ function onStatus(msg) {
     span.className = up ? "up" : "down"; span.textContent = s;
     alive.append(span);
   }
+  if (sim) onRtf(sim.rtf);
   $("description").textContent = msg.description === "ok" ? (state.robot ? state.robot.source : "") : msg.description;
   if (msg.targets) {
     if (!ghostVisible) { viewer.set_property(["ghost"], "visible", true); ghostVisible = true; }
@@ -160,5 +164,127 @@ for (const verb of ["reset", "pause", "resume", "step"]) {
   $("btn-" + verb).addEventListener("click", () => send({ type: "ctl", verb }));
 }
 $("mode").addEventListener("change", () => send({ type: "mode", mode: $("mode").value }));
+
+// --- plot panel ------------------------------------------------------------------------------
+// plotly.js (from the plotly wheel, served by the viz) draws the axes; it is loaded only when the
+// panel is first opened. The 3D view comes first: a redraw waits for the browser to be idle (at most
+// PLOT_REDRAW_MAX_WAIT_MS), happens at most every PLOT_REDRAW_MS, and draws at most
+// PLOT_MAX_POINTS points a curve (a 10 s window at 100 Hz is 1000 samples; the plot is ~600 px wide).
+const PLOT_WINDOW_S = 10, RTF_WINDOW_S = 60, PLOT_REDRAW_MS = 250, PLOT_REDRAW_MAX_WAIT_MS = 1000;
+const PLOT_MAX_POINTS = 300, MAX_PLOT_JOINTS = 6;
+const PLOT_COLOURS = ["#4e9cff", "#ff9f40", "#5ad17a", "#ff5c7a", "#c38bff", "#ffd34e"];
+const plot = { on: false, joints: [], t: [], q: [], target: [], tau: [], rtfT: [], rtf: [], redraws: 0, redrawMs: 0, timer: null };
+state.plot = plot;
+
+function buildPlotChoices(joints) {
+  const select = $("plot-joints");
+  const keep = new Set(plot.joints);
+  select.textContent = "";
+  for (const j of joints) {
+    const option = document.createElement("option");
+    option.value = option.textContent = j.name;
+    option.selected = keep.has(j.name);
+    select.append(option);
+  }
+  if (plot.on) requestPlot();
+}
+
+function loadPlotly() {
+  if (window.Plotly) return Promise.resolve();
+  return new Promise((resolve, reject) => {
+    const script = document.createElement("script");
+    script.src = "/plotly/plotly.min.js";
+    script.onload = resolve; script.onerror = () => reject(new Error("plotly.js did not load"));
+    document.head.append(script);
+  });
+}
+
+function requestPlot() {
+  plot.joints = [...$("plot-joints").selectedOptions].map((o) => o.value).slice(0, MAX_PLOT_JOINTS);
+  plot.t = []; plot.q = plot.joints.map(() => []); plot.target = plot.joints.map(() => []); plot.tau = plot.joints.map(() => []);
+  send({ type: "plot", joints: plot.joints });
+  scheduleRedraw();
+}
+
+async function setPlotting(on) {
+  plot.on = on;
+  $("btn-plot").textContent = on ? "Hide plots" : "Show plots";
+  if (!on) { $("plots").hidden = true; send({ type: "plot", joints: [] }); return; }
+  try { await loadPlotly(); } catch (err) { state.lastError = String(err); $("reply").textContent = String(err); return; }
+  $("plots").hidden = false;
+  requestPlot();
+}
+
+function onPlot(msg) {
+  if (msg.joints.join() !== plot.joints.join()) return;   // a batch for an earlier choice
+  if (msg.clear) { plot.t = []; plot.q = plot.joints.map(() => []); plot.target = plot.joints.map(() => []); plot.tau = plot.joints.map(() => []); }
+  plot.t.push(...msg.t);
+  msg.joints.forEach((_, i) => { plot.q[i].push(...msg.q[i]); plot.target[i].push(...msg.target[i]); plot.tau[i].push(...msg.tau[i]); });
+  const start = plot.t.length ? plot.t[plot.t.length - 1] - PLOT_WINDOW_S : 0;
+  let cut = 0;
+  while (cut < plot.t.length && plot.t[cut] < start) cut++;
+  if (cut) {
+    plot.t.splice(0, cut);
+    for (const arr of [...plot.q, ...plot.target, ...plot.tau]) arr.splice(0, cut);
+  }
+  scheduleRedraw();
+}
+
+function onRtf(rtf) {
+  const now = performance.now() / 1000;
+  plot.rtfT.push(now); plot.rtf.push(rtf);
+  while (plot.rtfT.length && plot.rtfT[0] < now - RTF_WINDOW_S) { plot.rtfT.shift(); plot.rtf.shift(); }
+  if (plot.on) scheduleRedraw();
+}
+
+function scheduleRedraw() {
+  if (!plot.on || !window.Plotly || plot.timer !== null) return;
+  plot.timer = setTimeout(() => {
+    const idle = window.requestIdleCallback || ((f) => setTimeout(f, 0));
+    idle(() => { plot.timer = null; redrawPlots(); }, { timeout: PLOT_REDRAW_MAX_WAIT_MS });
+  }, PLOT_REDRAW_MS);
+}
+
+function thin(values, stride) {
+  return stride <= 1 ? values.slice() : values.filter((_, i) => i % stride === 0 || i === values.length - 1);
+}
+
+const PLOT_LAYOUT = {
+  paper_bgcolor: "rgba(0,0,0,0)", plot_bgcolor: "rgba(0,0,0,0)", font: { color: "#dde", size: 11 },
+  margin: { l: 50, r: 10, t: 24, b: 34 }, showlegend: true, legend: { orientation: "h", y: 1.12, font: { size: 10 } },
+};
+
+function redrawPlots() {
+  if (!plot.on || $("plots").hidden) return;
+  const started = performance.now();
+  const traces = [];
+  const stride = Math.ceil(plot.t.length / PLOT_MAX_POINTS);
+  const t = thin(plot.t, stride);
+  plot.joints.forEach((name, i) => {
+    const colour = PLOT_COLOURS[i % PLOT_COLOURS.length];
+    traces.push({ x: t, y: thin(plot.q[i], stride), name: name + " q", mode: "lines", line: { color: colour, width: 2 } });
+    traces.push({ x: t, y: thin(plot.target[i], stride), name: "target", mode: "lines", line: { color: colour, width: 1.5, dash: "dash" } });
+    traces.push({ x: t, y: thin(plot.tau[i], stride), name: "torque", mode: "lines", line: { color: colour, width: 1 }, yaxis: "y2", showlegend: false });
+  });
+  // The arrays grow in place: datarevision tells Plotly.react the data changed.
+  const joints = Object.assign({}, PLOT_LAYOUT, { datarevision: plot.redraws,
+    title: { text: plot.joints.length ? "" : "pick joints in the panel", font: { size: 12 } },
+    xaxis: { title: { text: "sim time (s)" }, anchor: "y2", gridcolor: "#3c434e" },
+    yaxis: { title: { text: "position (rad)" }, domain: [0.42, 1], gridcolor: "#3c434e" },
+    yaxis2: { title: { text: "torque (N m)" }, domain: [0, 0.32], gridcolor: "#3c434e" },
+  });
+  const config = { staticPlot: true, displayModeBar: false };
+  Plotly.react("plot-joints-chart", traces, joints, config);
+  const now = performance.now() / 1000;
+  Plotly.react("plot-rtf-chart",
+    [{ x: plot.rtfT.map((t) => t - now), y: plot.rtf, name: "RTF", mode: "lines", line: { color: "#e377c2", width: 2 } }],
+    Object.assign({}, PLOT_LAYOUT, { datarevision: plot.redraws, showlegend: false, title: { text: "real-time factor", font: { size: 12 } },
+      xaxis: { title: { text: "wall time (s)" }, gridcolor: "#3c434e" }, yaxis: { rangemode: "tozero", gridcolor: "#3c434e" } }),
+    config);
+  plot.redraws += 1;
+  plot.redrawMs += performance.now() - started;   // main-thread time the plots took (benchmarks/viz_plots.py)
+}
+
+$("btn-plot").addEventListener("click", () => setPlotting(!plot.on));
 
 connect();

@@ -1,0 +1,160 @@
+"""`zensim replay FILE [--rate R] [--robot-id ID]`: publish a recording's states again, so the viewer draws the past run.
+
+Reads:  the MCAP file written by `zensim record`
+Writes: state/joints, state/odom, state/imu, state/sim, state/targets, state/applied of the recording,
+        at their recorded pace times 1/rate (msgpack, as the sim writes them)
+Serves: info/robot and info/urdf from the recording (the viewer fetches the description there)
+Token:  alive/sim (the viewer fetches a description when a sim appears) and alive/replay
+
+Only states go out, never commands: a replay must not drive a live robot. It stands in for the sim
+of its robot id, so it refuses to start when a live sim already serves that id.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from typing import Annotated, ClassVar
+
+import msgspec
+import zenoh
+
+from zensim.common.entry import fail, serve
+from zensim.common.logs import setup_logging
+from zensim.common.settings import CommonSettings, settings_or_exit
+from zensim.common.wire import TypedPublisher, reply
+from zensim.schemas import Keys, Message, check_robot_id
+
+from .mcapfile import Recording, read_recording
+
+logger = logging.getLogger("zensim.replay")
+
+PROG = "zensim replay"
+REPLAYED_PREFIX = "state/"
+LIVE_SIM_CHECK_S = 1.0
+
+
+class ReplaySettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Settings of `zensim replay FILE`."""
+
+    env_prefix: ClassVar[str] = "REPLAY"
+    robot_id: str | None = None  # type: ignore[assignment]
+    """Robot id to publish under; default: the recorded one."""
+    file: str = ""
+    """The MCAP file to replay (the first argument)."""
+    rate: Annotated[float, msgspec.Meta(ge=0, le=1000)] = 1.0
+    """Playback speed: 1 is the recorded pace, 2 twice as fast, 0 as fast as possible."""
+
+
+def leading_file_argument(argv: Sequence[str], flag: str = "--file") -> list[str]:
+    """`zensim replay FILE --rate 2` -> `--file FILE --rate 2` (the settings loader takes flags only)."""
+    args = list(argv)
+    if args and not args[0].startswith("-"):
+        return [flag, args[0], *args[1:]]
+    return args
+
+
+class Replay:
+    """Publishes one recording's states under one robot id and serves its description."""
+
+    def __init__(self, session: zenoh.Session, recording: Recording, robot_id: str) -> None:
+        self.session = session
+        self.recording = recording
+        self.keys = Keys(robot_id)
+        self.info = recording.robot_info
+        if self.info is not None:
+            # Served under the new id: the description names the keys it is reachable on.
+            self.info = msgspec.structs.replace(self.info, robot=robot_id, keys=self.keys.table())
+        self.publishers: dict[str, TypedPublisher] = {}
+        for item in recording.messages:
+            if item.relative_key.startswith(REPLAYED_PREFIX) and item.relative_key not in self.publishers \
+                    and isinstance(item.message, Message):
+                key = f"{self.keys.root}/{item.relative_key}"
+                self.publishers[item.relative_key] = TypedPublisher(session, key, type(item.message))
+        self._declared = [
+            session.declare_queryable(self.keys.robot_info, self._on_info),
+            session.declare_queryable(self.keys.urdf, self._on_urdf),
+        ]
+        self.tokens = [session.liveliness().declare_token(self.keys.alive(name)) for name in ("sim", "replay")]
+
+    def _on_info(self, query: zenoh.Query) -> None:
+        if self.info is None:
+            query.reply_err(b"the recording holds no info/robot")
+            return
+        wants_json = "format=json" in str(query.parameters)
+        reply(query, self.keys.robot_info, self.info, "json" if wants_json else "msgpack")
+
+    def _on_urdf(self, query: zenoh.Query) -> None:
+        if self.recording.urdf is None:
+            query.reply_err(b"the recording holds no info/urdf")
+            return
+        query.reply(self.keys.urdf, self.recording.urdf.encode(), encoding=zenoh.Encoding.APPLICATION_XML)
+
+    def play(self, rate: float, stop: threading.Event) -> int:
+        """Publish every recorded state at its recorded pace / rate; returns how many went out."""
+        items = [m for m in self.recording.messages if m.relative_key in self.publishers]
+        if not items:
+            return 0
+        origin_ns = items[0].log_time_ns
+        started = time.monotonic()
+        sent = 0
+        for item in items:
+            if rate > 0:
+                due = started + (item.log_time_ns - origin_ns) / 1e9 / rate
+                if stop.wait(max(0.0, due - time.monotonic())):
+                    break
+            elif stop.is_set():
+                break
+            self.publishers[item.relative_key].put(item.message)
+            sent += 1
+        return sent
+
+    def close(self) -> None:
+        for token in self.tokens:
+            token.undeclare()
+        for declared in self._declared:
+            declared.undeclare()
+        for publisher in self.publishers.values():
+            publisher.undeclare()
+
+
+def live_sim(session: zenoh.Session, keys: Keys) -> bool:
+    """Whether a sim (or another replay) already serves this robot id."""
+    replies = session.liveliness().get(keys.alive("sim"), timeout=LIVE_SIM_CHECK_S)
+    return any(r.ok is not None for r in replies)
+
+
+def replay(session: zenoh.Session, settings: ReplaySettings, stop: threading.Event, recording: Recording,
+           robot_id: str) -> int:
+    """Publish the recording once (refused when a live sim serves `robot_id`); returns the exit code."""
+    keys = Keys(robot_id)
+    if live_sim(session, keys):
+        return fail(PROG, f"a live sim already serves robot id {robot_id!r}; replay under another one: --robot-id ID")
+    player = Replay(session, recording, robot_id)
+    logger.info("replaying %s under zensim/%s at rate %g (%d messages)", settings.file, robot_id, settings.rate,
+                sum(1 for m in recording.messages if m.relative_key in player.publishers))
+    try:
+        sent = player.play(settings.rate, stop)
+    finally:
+        player.close()
+    logger.info("replay done: %d messages published", sent)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = leading_file_argument(sys.argv[1:] if argv is None else argv)
+    settings = settings_or_exit(ReplaySettings, args, PROG)
+    if not settings.file:
+        return fail(PROG, "give the recording: zensim replay FILE [--rate R] [--robot-id ID]")
+    setup_logging(settings.log_level)
+    try:
+        recording = read_recording(settings.file)
+        robot_id = check_robot_id(settings.robot_id or recording.robot_id)
+    except (OSError, ValueError) as exc:
+        return fail(PROG, str(exc))
+    # Secured network: the sim's credentials, since a replay stands in for the sim (its state keys, info/*,
+    # alive/sim); the bridge's state/targets and alive/replay are then not allowed and not seen.
+    return serve(PROG, settings, lambda session, s, stop: replay(session, s, stop, recording, robot_id), role="sim")

@@ -1,0 +1,308 @@
+"""`zensim resim FILE`: run a recording's commands through the physics again and report how far it drifts.
+
+No network: the physics (zensim.sim.physics) runs in this process, built from the bundled robot (or
+`--urdf`/`--control`) in the recorded mode and timestep, and checked against the recorded RobotInfo.
+
+Lockstep recordings hold `state/applied`: every command with the exact sim time it took effect and
+the number of steps it ran. Re-simulation starts from the recorded state at the first command's time
+(a reset state at t = 0 is recreated exactly: same pose, same zeroed solver state), applies each command
+at its time for its steps, and compares joint positions and base pose with the recorded state at the
+end of each. Same machine and build: the divergence is 0.
+
+Real-time recordings hold only what arrived on `cmd/motors`. The sim applied each at the first physics
+step after it arrived, which no recording can know; resim applies it at the last state the recorder
+had seen before it, i.e. up to one state period (10 ms at 100 Hz) early, and lets the watchdog's wall
+clock out. The divergence then measures how much the run depended on that timing (network, load), not
+an error in the physics.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from typing import ClassVar
+from dataclasses import dataclass, field
+
+import mujoco
+import msgspec
+import numpy as np
+
+from zensim.common.settings import settings_or_exit
+from zensim.robots import robot_files
+from zensim.schemas import AppliedCommand, JointState, MotorCommand, Odometry, ResetRequest
+from zensim.sim.physics import CommandError, Limits, Simulation
+
+from .mcapfile import Recording, read_recording
+from .replay import leading_file_argument
+
+TIME_MATCH_S = 1e-9
+"""Two sim times closer than this are the same instant (both come from the same float sums)."""
+
+
+class ResimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Settings of `zensim resim FILE`."""
+
+    env_prefix: ClassVar[str] = "RESIM"
+    file: str = ""
+    """The MCAP file to re-simulate (the first argument)."""
+    robot: str = "unitree_g1"
+    """Bundled robot the recording was made with; ignored when --urdf is given."""
+    urdf: str | None = None
+    """The URDF the recording was made with, if not a bundled robot."""
+    control: str | None = None
+    """Its control file (default: control.toml beside it)."""
+    max_kp: float = 5000.0
+    """Largest accepted kp, as the recording sim had it, N m/rad."""
+    max_kd: float = 500.0
+    """Largest accepted kd, as the recording sim had it, N m s/rad."""
+
+
+@dataclass
+class Divergence:
+    """The largest differences between re-simulated and recorded states."""
+
+    joint_rad: float = 0.0
+    base_pos_m: float = 0.0
+    base_rot_rad: float = 0.0
+    compared: int = 0
+    commands: int = 0
+    sim_time_s: float = 0.0
+    exact_start: bool = True
+    skipped: int = 0
+    notes: list[str] = field(default_factory=list)
+
+    def add(self, sim: Simulation, joints: JointState | None, odom: Odometry | None) -> None:
+        if joints is None and odom is None:
+            return
+        self.compared += 1
+        if joints is not None:
+            mine = sim.joint_state(0)
+            self.joint_rad = max(self.joint_rad, float(np.max(np.abs(np.subtract(mine.q, joints.q)))))
+        if odom is not None:
+            mine_odom = sim.odometry(0)
+            self.base_pos_m = max(self.base_pos_m, float(np.max(np.abs(np.subtract(mine_odom.pos, odom.pos)))))
+            self.base_rot_rad = max(self.base_rot_rad, rotation_between(mine_odom.quat_wxyz, odom.quat_wxyz))
+
+
+def rotation_between(a_wxyz: Sequence[float], b_wxyz: Sequence[float]) -> float:
+    """Angle of the rotation from a to b, rad: exactly 0 for equal quaternions (acos of a dot product is not)."""
+    conj, rel = np.zeros(4), np.zeros(4)
+    mujoco.mju_negQuat(conj, np.asarray(a_wxyz, float))
+    mujoco.mju_mulQuat(rel, conj, np.asarray(b_wxyz, float))
+    return 2.0 * math.atan2(float(np.linalg.norm(rel[1:])), abs(float(rel[0])))
+
+
+def _instant(t: float) -> int:
+    """A sim time as a dictionary key: whole microseconds (steps are milliseconds apart)."""
+    return round(t * 1e6)
+
+
+class StateIndex:
+    """Recorded joint states and odometry by sim time, within one segment (no reset inside, see
+    `one_segment`, so each instant has one state)."""
+
+    def __init__(self, recording: Recording) -> None:
+        self.joints = {_instant(m.sim_time_s): m for m in recording.of("state/joints")}
+        self.odom = {_instant(m.sim_time_s): m for m in recording.of("state/odom")}
+
+    def at(self, t: float) -> tuple[JointState | None, Odometry | None]:
+        return self.joints.get(_instant(t)), self.odom.get(_instant(t))
+
+
+def place(sim: Simulation, joints: JointState, odom: Odometry) -> bool:
+    """Put the physics in a recorded state. Returns True when that state is exactly a reset state.
+
+    A reset zeroes everything MuJoCo carries from step to step (solver warm start included), so a
+    recorded state at t = 0 is recreated bit for bit by a reset to its pose. A state taken mid-run
+    sets positions and velocities only: the warm start differs, so tiny differences follow.
+    """
+    sim.reset(ResetRequest(q=tuple(joints.q), base_height_m=odom.pos[2]))
+    if joints.sim_time_s == 0.0 and list(sim.joint_state(0).q) == list(joints.q) \
+            and list(sim.odometry(0).pos) == list(odom.pos) and list(sim.odometry(0).quat_wxyz) == list(odom.quat_wxyz):
+        return True
+    robot, data = sim.robot, sim.data
+    data.qpos[robot.qpos_adr] = joints.q
+    data.qvel[robot.dof_adr] = joints.dq
+    if robot.free_qpos_adr >= 0:
+        a = robot.free_qpos_adr
+        data.qpos[a:a + 3] = odom.pos
+        data.qpos[a + 3:a + 7] = odom.quat_wxyz
+        d = robot.free_dof_adr  # free joint: linear velocity in the world frame, angular in the body frame
+        data.qvel[d:d + 3] = odom.lin_vel_world
+        data.qvel[d + 3:d + 6] = odom.ang_vel_body
+    data.time = joints.sim_time_s
+    mujoco.mj_forward(robot.model, data)
+    return False
+
+
+def resim_lockstep(sim: Simulation, recording: Recording, applied: list[AppliedCommand]) -> Divergence:
+    states = StateIndex(recording)
+    result = Divergence()
+    synced = False
+    for command in applied:
+        if not synced or abs(sim.sim_time_s - command.sim_time_s) >= TIME_MATCH_S:
+            # The start, or the recording's sim was reset (or stepped by hand) since the last command.
+            joints, odom = states.at(command.sim_time_s)
+            if joints is not None and odom is not None:
+                result.exact_start = place(sim, joints, odom) and result.exact_start
+            elif command.sim_time_s == 0.0:
+                # A sim publishes its t = 0 state before anyone may listen: a recorder started after the
+                # sim missed it. A command at t = 0 follows a reset; the default one is the likely one
+                # (a wrong guess shows up as divergence at the very next state).
+                sim.reset()
+                result.notes.append("no recorded state at t = 0: started from the default reset pose")
+            else:
+                result.skipped += 1
+                synced = False
+                continue
+            synced = True
+        try:
+            sim.accept_command(command.command)
+        except CommandError as exc:  # the recording sim refused it too (and did not step)
+            result.notes.append(f"command {command.seq} refused: {exc}")
+            continue
+        sim.step(command.steps)
+        result.commands += 1
+        result.sim_time_s = sim.sim_time_s
+        result.add(sim, *states.at(sim.sim_time_s))
+    return result
+
+
+def resim_realtime(sim: Simulation, recording: Recording) -> Divergence:
+    """Commands placed at the last recorded state before their arrival (see the module docstring)."""
+    result = Divergence(exact_start=False)
+    timeline: list[tuple[float, object]] = []
+    last_t: float | None = None
+    pending_odom: dict[float, Odometry] = {}
+    joints_at: dict[float, JointState] = {}
+    for item in recording.messages:
+        if item.relative_key == "state/joints":
+            last_t = item.message.sim_time_s
+            joints_at[last_t] = item.message
+            timeline.append((last_t, item.message))
+        elif item.relative_key == "state/odom":
+            pending_odom[item.message.sim_time_s] = item.message
+        elif item.relative_key == "cmd/motors" and last_t is not None:
+            timeline.append((last_t, item.message))
+    states = [(t, m) for t, m in timeline if isinstance(m, JointState) and t in pending_odom]
+    if not states:
+        result.notes.append("no recorded states to start from")
+        return result
+    t0, first = states[0]
+    place(sim, first, pending_odom[t0])
+    dt = sim.timestep_s
+    for t, message in timeline:
+        if t < t0:
+            continue
+        if isinstance(message, MotorCommand):
+            try:
+                sim.accept_command(message)
+                result.commands += 1
+            except CommandError as exc:
+                result.notes.append(f"a command refused: {exc}")
+            continue
+        n = round((t - sim.sim_time_s) / dt)
+        if n > 0:
+            sim.step(n)
+            result.sim_time_s = sim.sim_time_s
+            result.add(sim, message, pending_odom.get(t))
+    return result
+
+
+def one_segment(recording: Recording) -> tuple[str, str | None]:
+    """Keep the longest stretch of the recording with no reset and no mode switch in it.
+
+    A reset starts sim time over and a mode switch rebuilds the model: re-simulating across either
+    would compare states of different runs. Returns the segment's mode and a note on what was left
+    out (None when the recording is one segment).
+    """
+    info = recording.robot_info
+    messages = recording.messages
+    cuts, mode, last_t = [0], info.mode if info is not None else "floating", None
+    modes = [mode]
+    for i, item in enumerate(messages):
+        if item.relative_key == "state/sim" and item.message.mode != modes[-1]:
+            cuts.append(i)
+            modes.append(item.message.mode)
+            last_t = None
+        elif item.relative_key == "state/joints":
+            t = item.message.sim_time_s
+            if last_t is not None and t < last_t - TIME_MATCH_S:
+                cuts.append(i)
+                modes.append(modes[-1])
+            last_t = t
+    cuts.append(len(messages))
+    segments = list(zip(cuts, cuts[1:], modes))
+    if len(segments) == 1:
+        return modes[0], None
+
+    def states(segment: tuple[int, int, str]) -> int:
+        return sum(1 for m in messages[segment[0]:segment[1]] if m.relative_key == "state/joints")
+
+    start, end, mode = max(segments, key=states)
+    first = next((m.message.sim_time_s for m in messages[start:end] if m.relative_key == "state/joints"), 0.0)
+    recording.messages = messages[start:end]
+    return mode, (f"the recording has {len(segments)} segments (resets or mode switches); re-simulated the longest, "
+                  f"{mode} mode from t = {first:.3f} s")
+
+
+def build_sim(settings: ResimSettings, recording: Recording, mode: str) -> Simulation:
+    info = recording.robot_info
+    if info is None:
+        raise ValueError("the recording holds no info/robot: start `zensim record` while the sim runs")
+    files = robot_files(None if settings.urdf else settings.robot, urdf=settings.urdf, control=settings.control)
+    sim = Simulation(files, mode, Limits(max_kp=settings.max_kp, max_kd=settings.max_kd),  # type: ignore[arg-type]
+                     watchdog_timeout_s=info.watchdog_timeout_s, timestep_s=info.timestep_s)
+    sim.watchdog_enabled = False  # wall-clock silences are not in the recording
+    if tuple(sim.robot.joint_names) != tuple(info.joint_names):
+        raise ValueError(f"the recording is of {info.model} with other joints than {sim.robot.name}; "
+                         "pass the recorded robot with --robot or --urdf")
+    return sim
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = leading_file_argument(sys.argv[1:] if argv is None else argv)
+    settings = settings_or_exit(ResimSettings, args, "zensim resim")
+    if not settings.file:
+        print("usage: zensim resim FILE [--robot NAME | --urdf PATH]", file=sys.stderr)
+        return 2
+    try:
+        recording = read_recording(settings.file)
+        mode, cut = one_segment(recording)
+        sim = build_sim(settings, recording, mode)
+    except (OSError, ValueError) as exc:
+        print(f"zensim resim: {exc}", file=sys.stderr)
+        return 2
+    applied = recording.of("state/applied")
+    if applied:
+        kind = "lockstep"
+        result = resim_lockstep(sim, recording, applied)
+    else:
+        kind = "real-time"
+        result = resim_realtime(sim, recording)
+    print(f"resim {settings.file}: {kind} recording of {recording.robot_id} ({sim.robot.name}, {sim.mode}), "
+          f"{result.commands} commands, {result.compared} states compared, up to t = {result.sim_time_s:.3f} s")
+    print(f"largest divergence: joint position {result.joint_rad:.6g} rad, base position {result.base_pos_m:.6g} m, "
+          f"base orientation {result.base_rot_rad:.6g} rad")
+    if kind == "lockstep":
+        if result.exact_start:
+            print("lockstep: every command re-applied at its recorded sim time from a reset state; on the same "
+                  "machine and build this is 0 (bit-identical).")
+        else:
+            print("lockstep, but the recording starts mid-run: positions and velocities were restored, the "
+                  "solver's warm start was not, so small differences are expected.")
+    else:
+        print("real-time: commands were applied at the last state recorded before they arrived (up to one state "
+              "period off the step the sim used), so this measures how much the run depended on network and "
+              "load timing, not an error in the physics.")
+    if cut:
+        print(f"note: {cut}")
+    if result.skipped:
+        print(f"note: {result.skipped} commands skipped: no recorded state at their start time (samples lost)")
+    for note in result.notes[:10]:
+        print(f"note: {note}")
+    if result.compared == 0:
+        print("nothing was compared: the recording holds no states after its commands", file=sys.stderr)
+        return 1
+    return 0
