@@ -71,6 +71,15 @@ with zenoh.open(conf) as session:
 """
 
 
+def pin(pid: int, cpus: set[int]) -> None:
+    """Move every thread of a process onto `cpus` (threads made later inherit it)."""
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            os.sched_setaffinity(int(task.name), cpus)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
 def rss_mb(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -119,6 +128,9 @@ def main() -> int:
     parser.add_argument("--trials", type=int, default=150, help="latency trials per phase")
     parser.add_argument("--state-rate-hz", default="500")
     parser.add_argument("--no-nice", action="store_true", help="run the flooders at normal priority")
+    parser.add_argument("--pin", action="store_true",
+                        help="the sim and the good client on CPU 0, the router and the flooders on CPU 1: the sim's "
+                             "isolation measured as if the attack ran on other hosts (it needs more than 2 cores)")
     parser.add_argument("--cmd-rate-limit-hz", default="0",
                         help="the router's per-link rate limit on cmd/** (zensim router --cmd-rate-limit-hz); 0: off")
     args = parser.parse_args()
@@ -136,6 +148,10 @@ def main() -> int:
         with zenoh.open(client_config(endpoint)) as session:
             sim = procs.zensim("sim", "--mode", "floating", "--rtf", "1", "--state-rate-hz", args.state_rate_hz)
             i, default, low, high, probe = elbow_trials(session, keys)
+            if args.pin:
+                pin(sim.pid, {0})
+                pin(os.getpid(), {0})
+                pin(router.pid, {1})
             watch = Watch()
             subs = [session.declare_subscriber(keys.joints, lambda s: (probe.on_state(s), watch.on_state(s))),
                     session.declare_subscriber(keys.sim_status, watch.on_status)]
@@ -167,6 +183,10 @@ def main() -> int:
             flooders = [procs.start(f"flood-{kind}", [*nice, sys.executable, "-c", FLOODER, kind, endpoint, keys.motors,
                                                        str(args.rate_hz), str(args.seconds)])
                         for kind in ("malformed", "oversize", "nested", "valid")]
+            if args.pin:
+                time.sleep(1.0)  # their zenoh threads exist once the sessions are open
+                for proc in flooders:
+                    pin(proc.pid, {1})
             start = time.monotonic()
             rss_at_10 = None
             latencies: list[float] = []
@@ -195,7 +215,8 @@ def main() -> int:
     finally:
         procs.stop_all()
 
-    print(f"\nrouter rate limit on cmd/**: {args.cmd_rate_limit_hz} Hz per link; flooders (niced: {not args.no_nice}):")
+    print(f"\nrouter rate limit on cmd/**: {args.cmd_rate_limit_hz} Hz per link; pinned: {args.pin}; "
+          f"flooders (niced: {not args.no_nice}):")
     for rate in flood_rates:
         print("  ", rate)
     print(f"\n{'phase':<7} {'worst 1 s RTF':>14} {'states/s':>9} {'worst 1 s':>9} {'p50 ms':>7} {'p99 ms':>7} "

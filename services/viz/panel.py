@@ -1,8 +1,10 @@
 """What a browser may ask for, checked before anything reaches zenoh: pure logic, no zenoh.
 
-The page speaks plain JSON. Anything else (unknown types, unknown joints,
-non-finite numbers, oversized lists) is refused with a reason; slider values
-are clamped to the joint limits the page shows.
+The page speaks plain JSON: one of the tagged structs below, told apart by
+`type` (a msgspec tagged union: the shapes and types are checked by msgspec,
+in one place). What needs the robot (joint names, limits) is checked here
+after. Anything else is refused with a reason shown on the page; slider
+values are clamped to the joint limits the page shows.
 """
 
 from __future__ import annotations
@@ -10,17 +12,47 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Any, Final, Literal
 
-from zensim.schemas import JointTargets
+import msgspec
 
-PAGE_CTL_VERBS: Final = ("reset", "pause", "resume", "step")
+from zensim.schemas import JointTargets, bounded, short_repr
+
 MODES: Final = ("floating", "fixed")
 MAX_PLOT_JOINTS: Final = 6
 
 
 class PanelError(ValueError):
     """A browser message that is refused; the text is shown on the page."""
+
+
+class PageTargets(msgspec.Struct, tag="targets", forbid_unknown_fields=True):
+    """Slider moves: `{"type": "targets", "names": [...], "q": [...]}`."""
+
+    names: list[str]
+    q: list[float]
+
+
+class PageCtl(msgspec.Struct, tag="ctl", forbid_unknown_fields=True):
+    """A button: `{"type": "ctl", "verb": "pause"}`."""
+
+    verb: Literal["reset", "pause", "resume", "step"]
+
+
+class PageMode(msgspec.Struct, tag="mode", forbid_unknown_fields=True):
+    """The mode selector: `{"type": "mode", "mode": "fixed"}`."""
+
+    mode: Literal["floating", "fixed"]
+
+
+class PagePlot(msgspec.Struct, tag="plot", forbid_unknown_fields=True):
+    """The joints to plot: `{"type": "plot", "joints": [...]}`; [] stops plotting."""
+
+    joints: list[str]
+
+
+PageMessage = PageTargets | PageCtl | PageMode | PagePlot
+PAGE_CTL_VERBS: Final = ("reset", "pause", "resume", "step")
 
 
 @dataclass(frozen=True)
@@ -50,6 +82,14 @@ class JointLimits:
         i = self.index[name]
         return min(max(value, self.lower[i]), self.upper[i])
 
+    def check(self, names: Sequence[str]) -> None:
+        """Refuse unknown or repeated joints."""
+        for name in names:
+            if name not in self.index:
+                raise PanelError(f"unknown joint {short_repr(name)}")
+        if len(set(names)) != len(names):
+            raise PanelError("a joint is named twice")
+
 
 def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets | Ctl | PlotRequest:
     """Turn one decoded JSON message from the page into a command.
@@ -59,52 +99,35 @@ def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets 
         limits: the current robot's joints; None before a description arrived.
 
     Returns:
-        JointTargets for `{"type": "targets", "names": [...], "q": [...]}`,
-        Ctl for `{"type": "ctl", "verb": ...}` and `{"type": "mode", "mode": ...}`,
-        PlotRequest for `{"type": "plot", "joints": [...]}` (at most MAX_PLOT_JOINTS, [] stops).
+        JointTargets for `targets`, Ctl for `ctl` and `mode`, PlotRequest for `plot`.
 
     Raises:
-        PanelError: anything malformed or unknown.
+        PanelError: anything malformed, unknown or out of place.
     """
-    if not isinstance(data, dict):
-        raise PanelError("message must be a JSON object")
-    kind = data.get("type")
-    if kind == "targets":
-        if limits is None:
-            raise PanelError("no robot description yet")
-        names, q = data.get("names"), data.get("q")
-        if not isinstance(names, list) or not isinstance(q, list) or len(names) != len(q):
-            raise PanelError("targets need lists `names` and `q` of the same length")
-        if not names or len(names) > len(limits.names) or len(set(map(str, names))) != len(names):
-            raise PanelError("targets must name each joint at most once")
-        values = []
-        for name, value in zip(names, q):
-            if not isinstance(name, str) or name not in limits.index:
-                raise PanelError(f"unknown joint {name!r}")
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise PanelError(f"target of {name} must be a finite number")
-            values.append(limits.clamp(name, float(value)))
-        return JointTargets(names=tuple(names), q=tuple(values))
-    if kind == "ctl":
-        verb = data.get("verb")
-        if verb not in PAGE_CTL_VERBS:
-            raise PanelError(f"unknown control {verb!r}")
-        return Ctl(verb=verb)
-    if kind == "mode":
-        mode = data.get("mode")
-        if mode not in MODES:
-            raise PanelError(f"mode must be one of {MODES}")
-        return Ctl(verb="mode", mode=mode)
-    if kind == "plot":
-        joints = data.get("joints")
-        if not isinstance(joints, list) or len(joints) > MAX_PLOT_JOINTS:
-            raise PanelError(f"plot needs a list `joints` of at most {MAX_PLOT_JOINTS} joints")
-        if joints and limits is None:
-            raise PanelError("no robot description yet")
-        for name in joints:
-            if not isinstance(name, str) or limits is None or name not in limits.index:
-                raise PanelError(f"unknown joint {name!r}")
-        if len(set(joints)) != len(joints):
-            raise PanelError("plot names a joint twice")
-        return PlotRequest(joints=tuple(joints))
-    raise PanelError(f"unknown message type {kind!r}")
+    try:
+        message = msgspec.convert(data, PageMessage)
+    except msgspec.ValidationError as exc:
+        raise PanelError(bounded(f"refused: {exc}")) from None
+    match message:
+        case PageTargets(names=names, q=q):
+            if limits is None:
+                raise PanelError("no robot description yet")
+            if not names or len(names) != len(q):
+                raise PanelError("targets need `names` and `q` of the same, non-zero length")
+            limits.check(names)
+            if not all(math.isfinite(value) for value in q):
+                raise PanelError("targets must be finite numbers")
+            return JointTargets(names=tuple(names), q=tuple(limits.clamp(n, float(v)) for n, v in zip(names, q)))
+        case PageCtl(verb=verb):
+            return Ctl(verb=verb)
+        case PageMode(mode=mode):
+            return Ctl(verb="mode", mode=mode)
+        case PagePlot(joints=joints):
+            if len(joints) > MAX_PLOT_JOINTS:
+                raise PanelError(f"plot at most {MAX_PLOT_JOINTS} joints")
+            if joints:
+                if limits is None:
+                    raise PanelError("no robot description yet")
+                limits.check(joints)
+            return PlotRequest(joints=tuple(joints))
+    raise PanelError("unknown message")  # unreachable: the union is closed

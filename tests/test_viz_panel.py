@@ -1,0 +1,53 @@
+"""The page's messages: a msgspec tagged union, then the robot-aware checks (no browser, no zenoh)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from zensim.schemas import JointTargets
+from zensim.viz import panel
+
+LIMITS = panel.JointLimits(("knee", "elbow"), (-1.0, -2.0), (1.0, 2.0))
+
+
+def test_each_message_type_becomes_its_command() -> None:
+    targets = panel.parse_client_message({"type": "targets", "names": ["elbow"], "q": [3]}, LIMITS)
+    assert targets == JointTargets(names=("elbow",), q=(2.0,)), "a target beyond the limit is clamped"
+    assert panel.parse_client_message({"type": "ctl", "verb": "pause"}, LIMITS) == panel.Ctl("pause")
+    assert panel.parse_client_message({"type": "mode", "mode": "fixed"}, None) == panel.Ctl("mode", "fixed")
+    assert panel.parse_client_message({"type": "plot", "joints": ["knee"]}, LIMITS) == panel.PlotRequest(("knee",))
+
+
+@pytest.mark.parametrize("data", [
+    [1, 2],                                                          # not an object
+    {"verb": "pause"},                                               # no type
+    {"type": "launch"},                                              # unknown type
+    {"type": "ctl", "verb": "explode"},                              # unknown verb
+    {"type": "ctl", "verb": "pause", "extra": 1},                    # unknown field
+    {"type": "mode", "mode": "flying"},
+    {"type": "targets", "names": ["knee"], "q": ["up"]},             # wrong type
+    {"type": "targets", "names": ["knee"], "q": [True]},             # a bool is not a number
+    {"type": "targets", "names": ["knee"], "q": [math.nan]},         # json.loads reads NaN
+    {"type": "targets", "names": ["knee", "elbow"], "q": [0.1]},     # lengths differ
+    {"type": "targets", "names": ["knee", "knee"], "q": [0.1, 0.2]},  # a joint twice
+    {"type": "targets", "names": ["tail"], "q": [0.1]},              # unknown joint
+    {"type": "targets", "names": [], "q": []},
+    {"type": "plot", "joints": ["knee"] * 7},
+])
+def test_anything_else_is_refused_with_a_reason(data: object) -> None:
+    with pytest.raises(panel.PanelError) as info:
+        panel.parse_client_message(data, LIMITS)
+    assert str(info.value)
+
+
+def test_targets_wait_for_a_robot_description() -> None:
+    with pytest.raises(panel.PanelError, match="description"):
+        panel.parse_client_message({"type": "targets", "names": ["knee"], "q": [0.1]}, None)
+
+
+def test_a_long_unknown_name_is_not_echoed_whole() -> None:
+    with pytest.raises(panel.PanelError) as info:
+        panel.parse_client_message({"type": "targets", "names": ["x" * 100_000], "q": [0.1]}, LIMITS)
+    assert len(str(info.value)) < 300
