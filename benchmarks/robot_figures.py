@@ -16,7 +16,8 @@ import mujoco
 import numpy as np
 
 from zensim.robots import RobotFiles, robot_files
-from zensim.robots.builder import apply_motor_command, base_tilt_rad, build, read_base, reset, warnings_of
+from zensim.robots.builder import build
+from zensim.sim.mjdata import apply_motor_command, base_tilt_rad, read_base, reset, warnings_of
 
 STAND_S = 30.0
 SETTLE_S = 2.0

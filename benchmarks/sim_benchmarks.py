@@ -35,7 +35,8 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from support import Latest, free_port, plain_client  # noqa: E402
 from zensim.robots import robot_files  # noqa: E402
-from zensim.robots.builder import build, reset  # noqa: E402
+from zensim.robots.builder import build  # noqa: E402
+from zensim.sim.mjdata import reset  # noqa: E402
 from zensim.schemas import Codec, JointState, Keys, MotorCommand, SimStatus  # noqa: E402
 
 

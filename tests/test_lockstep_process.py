@@ -10,7 +10,7 @@ import msgspec
 import pytest
 import zenoh
 
-from support import Latest, ctl, wait_for
+from support import Latest, ctl
 from test_sim_process import robot_info, wait_alive
 from zensim.schemas import AppliedCommand, JointState, Keys, Odometry, SimStatus
 

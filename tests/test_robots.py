@@ -16,18 +16,10 @@ import pytest
 import yourdfpy
 
 from zensim.robots import BUNDLED_DIR, bundled_robots, robot_files
-from zensim.robots.builder import (
-    Robot,
-    apply_motor_command,
-    base_tilt_rad,
-    build,
-    read_base,
-    read_imu,
-    reset,
-    warnings_of,
-)
+from zensim.robots.builder import Robot, build
 from zensim.robots.cli import main as cli_main
 from zensim.robots.control import ControlConfigError, load_control, unmatched_patterns
+from zensim.sim.mjdata import apply_motor_command, base_tilt_rad, read_base, read_imu, reset, warnings_of
 
 # Standing in the squat, 30 s, default gains (measured: settled pelvis 0.7249-0.7255 m, tilt <= 0.011
 # rad after the 12 cm drop; min 0.7056 m and tilt 0.024 rad during the drop's first second).

@@ -183,7 +183,8 @@ def test_bad_lowcmd_is_ignored_counted_and_survived(rig, zsession):
         time.sleep(0.005)
     malformed_sent = 5 * len(malformed)
     counted = status.wait(lambda s: s.rejected - after.rejected >= 0.9 * malformed_sent, what="malformed samples counted")
-    assert "bytes serialized" in counted.last_error, counted.last_error  # the oversized one came last
+    # Which malformed sample was refused last depends on delivery order: either reason is the codec's.
+    assert "bytes serialized" in counted.last_error or "encapsulation" in counted.last_error, counted.last_error
     assert adapter.alive(), adapter.log()
 
     # Still serving: a good command moves the elbow.

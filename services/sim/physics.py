@@ -23,16 +23,7 @@ import mujoco
 import numpy as np
 
 from zensim.robots import RobotFiles
-from zensim.robots.builder import (
-    Mode,
-    Robot,
-    apply_motor_command,
-    base_tilt_rad,
-    build,
-    read_base,
-    read_imu,
-    reset,
-)
+from zensim.robots.builder import Mode, Robot, build
 from zensim.schemas import (
     SCHEMA_VERSION,
     bounded,
@@ -46,6 +37,8 @@ from zensim.schemas import (
     ResetRequest,
     RobotInfo,
 )
+
+from .mjdata import apply_motor_command, base_tilt_rad, read_base, read_imu, reset
 
 logger = logging.getLogger(__name__)
 

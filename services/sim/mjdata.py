@@ -1,0 +1,112 @@
+"""What runs on MjData at every physics step: apply a motor command, reset, read the base and the IMU.
+
+zensim.robots builds a model (URDF + control.toml -> MjModel + metadata);
+this module is what the running sim does with it, step after step, and so
+it lives with the sim (physics.py's Simulation is its one user in the
+product; the robot tests and benchmarks drive it directly). No network here.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from zensim.robots.builder import Robot, place_base
+
+def _vector(robot: Robot, name: str, value: object) -> np.ndarray:
+    arr = np.asarray(value, dtype=float).reshape(-1)
+    if arr.shape != (robot.nu,):
+        raise ValueError(f"{name} must have {robot.nu} values (one per joint), got {arr.shape[0]}")
+    return arr
+
+
+def apply_motor_command(robot: Robot, data: mujoco.MjData, q: object, dq: object, kp: object, kd: object,
+                        tau: object) -> None:
+    """Set the motor command for the next steps (Unitree LowCmd semantics), in canonical joint order.
+
+    tau_joint = kp*(q - q_meas) + kd*(dq - dq_meas) + tau, clipped to the URDF effort limit. The gains go
+    into the model's affine bias (so MuJoCo integrates the kd term implicitly) and the rest into ctrl.
+    The gains live in `robot.model`: every MjData of this model shares them.
+
+    Raises:
+        ValueError: An argument does not have one value per joint.
+    """
+    q_, dq_, kp_, kd_, tau_ = (_vector(robot, n, v) for n, v in
+                               (("q", q), ("dq", dq), ("kp", kp), ("kd", kd), ("tau", tau)))
+    ids = robot.actuator_ids
+    robot.model.actuator_biasprm[ids, 1] = -kp_
+    robot.model.actuator_biasprm[ids, 2] = -kd_
+    data.ctrl[ids] = kp_ * q_ + kd_ * dq_ + tau_
+
+
+def reset(robot: Robot, data: mujoco.MjData, q: np.ndarray | None = None, base_height_m: float | None = None) -> None:
+    """Reset to a pose held by the default gains, then mj_forward so sensors are current.
+
+    Args:
+        robot: The robot.
+        data: Its MjData.
+        q: Joint positions (canonical order); default: `robot.default_q`.
+        base_height_m: Base height; default: `robot.base_height_m`. In the fixed mode this moves the
+            weld, which is part of the model.
+    """
+    q_ = robot.default_q.copy() if q is None else _vector(robot, "q", q)
+    height = robot.base_height_m if base_height_m is None else float(base_height_m)
+    mujoco.mj_resetData(robot.model, data)
+    place_base(robot, height)
+    if robot.free_qpos_adr >= 0:
+        a = robot.free_qpos_adr
+        data.qpos[a:a + 7] = [0.0, 0.0, height, 1.0, 0.0, 0.0, 0.0]
+    data.qpos[robot.qpos_adr] = q_
+    zeros = np.zeros(robot.nu)
+    apply_motor_command(robot, data, q_, zeros, robot.kp, robot.kd, zeros)
+    mujoco.mj_forward(robot.model, data)
+
+
+def _rotate_to_body(quat_wxyz: np.ndarray, vec_world: np.ndarray) -> np.ndarray:
+    conj = np.array([quat_wxyz[0], -quat_wxyz[1], -quat_wxyz[2], -quat_wxyz[3]])
+    out = np.zeros(3)
+    mujoco.mju_rotVecQuat(out, vec_world, conj)
+    return out
+
+
+def read_base(robot: Robot, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Base link frame (XBODY, not the centre of mass) state from sensors.
+
+    Sensors are computed before integration: call mj_forward after mj_step for current values.
+
+    Returns:
+        pos (3, world, m), quat_wxyz (4), lin_vel_world (3, m/s), ang_vel_body (3, rad/s).
+    """
+    s = data.sensordata
+    quat = s[robot.sensor_slices["base_quat"]].copy()
+    ang_world = s[robot.sensor_slices["base_angvel"]]
+    return (s[robot.sensor_slices["base_pos"]].copy(), quat, s[robot.sensor_slices["base_linvel"]].copy(),
+            _rotate_to_body(quat, ang_world))
+
+
+def read_imu(robot: Robot, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """IMU readings from the site at the IMU link.
+
+    Returns:
+        quat_wxyz (4, world from IMU), gyro_body (3, rad/s), accel_body (3, m/s^2, includes -gravity
+        as a real accelerometer does: +9.81 up when at rest).
+    """
+    s = data.sensordata
+    return (s[robot.sensor_slices["imu_quat"]].copy(), s[robot.sensor_slices["imu_gyro"]].copy(),
+            s[robot.sensor_slices["imu_accel"]].copy())
+
+
+def base_tilt_rad(robot: Robot, data: mujoco.MjData) -> float:
+    """Angle between the base's z axis and the world's z axis, rad (0 upright, pi upside down)."""
+    w, x, y, z = data.sensordata[robot.sensor_slices["base_quat"]]
+    norm2 = w * w + x * x + y * y + z * z
+    cos_tilt = 1.0 - 2.0 * (x * x + y * y) / norm2
+    return float(math.acos(max(-1.0, min(1.0, cos_tilt))))
+
+
+def warnings_of(data: mujoco.MjData) -> dict[str, int]:
+    """MuJoCo runtime warnings raised so far, by name (empty when the run was clean)."""
+    return {mujoco.mjtWarning(i).name: int(data.warning[i].number)
+            for i in range(len(data.warning)) if data.warning[i].number}
