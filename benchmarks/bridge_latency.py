@@ -71,21 +71,22 @@ def wait_until(condition: Callable[[], object], timeout_s: float, what: str) -> 
 
 
 class Processes:
-    """Child processes with logs in a temporary folder; all stopped on exit."""
+    """Child processes with logs in a temporary folder; all stopped on exit. The benchmarks share it."""
 
-    def __init__(self, env: dict[str, str]) -> None:
+    def __init__(self, env: dict[str, str], prefix: str = "bridge-bench-") -> None:
         self.env = env
-        self.dir = Path(tempfile.mkdtemp(prefix="bridge-bench-"))
+        self.dir = Path(tempfile.mkdtemp(prefix=prefix))
         self.procs: list[subprocess.Popen] = []
 
-    def start(self, name: str, argv: list[str]) -> subprocess.Popen:
+    def start(self, name: str, argv: list[str], env: dict[str, str] | None = None) -> subprocess.Popen:
         log = (self.dir / f"{name}-{len(self.procs)}.log").open("wb")
-        proc = subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        proc = subprocess.Popen(argv, env={**self.env, **(env or {})}, stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
         self.procs.append(proc)
         return proc
 
-    def zensim(self, command: str, *args: str) -> subprocess.Popen:
-        return self.start(command, [sys.executable, "-m", "zensim", command, *args])
+    def zensim(self, command: str, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
+        return self.start(command, [sys.executable, "-m", "zensim", command, *args], env)
 
     @staticmethod
     def stop(proc: subprocess.Popen) -> None:

@@ -23,19 +23,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
-import socket
-import subprocess
 import sys
-import tempfile
 import threading
 import time
-from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 import zenoh
 
+from bridge_latency import Processes, free_port, is_alive, wait_until
 from zensim.common.wire import payload_of
 from zensim.robots import robot_files
 from zensim.schemas import AdvanceReply, Codec, JointState, Keys, MotorCommand, RobotInfo, SimStatus
@@ -56,57 +51,6 @@ with zenoh.open(conf) as s:
 """
 PAYLOAD_BYTES = 2000
 """About an AdvanceReply (joint state, odometry and IMU of the G1) in msgpack."""
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def wait_until(condition: Callable[[], object], timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"timed out waiting for {what}")
-        time.sleep(0.02)
-
-
-class Processes:
-    """Child processes with logs in a temporary folder; all stopped on exit."""
-
-    def __init__(self, env: dict[str, str]) -> None:
-        self.env = env
-        self.dir = Path(tempfile.mkdtemp(prefix="lockstep-bench-"))
-        self.procs: list[subprocess.Popen] = []
-
-    def start(self, name: str, argv: list[str], env: dict[str, str] | None = None) -> subprocess.Popen:
-        log = (self.dir / f"{name}-{len(self.procs)}.log").open("wb")
-        proc = subprocess.Popen(argv, env={**self.env, **(env or {})}, stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
-        self.procs.append(proc)
-        return proc
-
-    def zensim(self, command: str, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
-        return self.start(command, [sys.executable, "-m", "zensim", command, *args], env)
-
-    @staticmethod
-    def stop(proc: subprocess.Popen) -> None:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(5)
-
-    def stop_all(self) -> None:
-        for proc in reversed(self.procs):
-            self.stop(proc)
-
-
-def is_alive(session: zenoh.Session, key: str) -> bool:
-    return any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5))
 
 
 def get_info(session: zenoh.Session, keys: Keys) -> RobotInfo:
@@ -255,7 +199,7 @@ def main() -> int:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     env = dict(os.environ, ZENSIM_ROBOT_ID="bench", ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint,
                ZENSIM_ZENOH_MULTICAST_SCOUTING="false", ZENSIM_LOG_LEVEL="WARNING")
-    procs = Processes(env)
+    procs = Processes(env, prefix="lockstep-bench-")
     try:
         procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
         conf = zenoh.Config()

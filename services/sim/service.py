@@ -53,6 +53,7 @@ from zensim.schemas import (
     RobotInfo,
     SimStatus,
     StepRequest,
+    MSGPACK,
     bounded,
     is_json,
 )
@@ -188,9 +189,14 @@ class SimService:
         query.reply(key, data, encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM)
 
     def _payload_is_json(self, query: zenoh.Query) -> bool:
+        """Whether to answer in JSON: the query's payload is JSON (an oversize one is judged by its label
+        alone, not read: JSON unless it says msgpack, as the command line sets no label)."""
         payload = query.payload
-        if payload is None or len(payload) > self.input_cap_bytes:
+        if payload is None:
             return False
+        if len(payload) > self.input_cap_bytes:
+            encoding = query.encoding
+            return not (encoding is not None and str(encoding).startswith(MSGPACK))
         return is_json(*payload_of(query))
 
     # --- commands --------------------------------------------------------
