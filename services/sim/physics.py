@@ -52,9 +52,9 @@ DQ_LIMIT_FACTOR = 2.0
 Q_RANGE_MARGIN_RAD = 2 * math.pi
 """A target within this of the joint range is clamped to it; one further out is refused."""
 FALLBACK_EFFORT_LIMIT = 1000.0
-"""Effort limit used for the bound when the description gives none (0), N m."""
+"""Effort limit used for the bound when the description gives none (0 or absent), N m."""
 FALLBACK_VELOCITY_LIMIT = 100.0
-"""Velocity limit used for the bound when the description gives none (0), rad/s."""
+"""Velocity limit used for the bound when the description gives none (0 or absent), rad/s."""
 RESET_HEIGHT_MIN_FACTOR = 0.5
 """Lowest reset height, as a fraction of the mode's spawn height (lower buries the legs in the floor)."""
 RESET_HEIGHT_MAX_ABOVE_M = 5.0
@@ -147,8 +147,10 @@ class Simulation:
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self.steps = 0
-        effort = np.where(robot.effort_limit > 0, robot.effort_limit, FALLBACK_EFFORT_LIMIT)
-        velocity = np.where(robot.velocity_limit > 0, robot.velocity_limit, FALLBACK_VELOCITY_LIMIT)
+        # A URDF without limits gives inf (or 0): the bound then falls back to a figure no motor exceeds.
+        effort, velocity = robot.effort_limit, robot.velocity_limit
+        effort = np.where(np.isfinite(effort) & (effort > 0), effort, FALLBACK_EFFORT_LIMIT)
+        velocity = np.where(np.isfinite(velocity) & (velocity > 0), velocity, FALLBACK_VELOCITY_LIMIT)
         self._max_tau = TAU_LIMIT_FACTOR * effort
         self._max_dq = DQ_LIMIT_FACTOR * velocity
 
