@@ -75,7 +75,7 @@ def assert_nothing_exposed(pid: int) -> None:
 
 def env_without_network_settings() -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("ZENSIM_")}
-    return dict(env, PYTHONUNBUFFERED="1", ZENSIM_MODE="fixed")
+    return dict(env, PYTHONUNBUFFERED="1", ZENSIM_SIM_MODE="fixed")
 
 
 def check(net: Network, service: str) -> bool:

@@ -168,7 +168,7 @@ def test_zensim_up_secured_runs_everything_and_operator_drives_through_the_bridg
     """Each service's own role is enough for its job: the bridge moves a joint the operator asks for."""
     endpoint = f"tls/127.0.0.1:{free_port()}"
     viz_port = free_port()
-    env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_PORT=str(viz_port), ZENSIM_MODE="fixed",
+    env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_VIZ_PORT=str(viz_port), ZENSIM_SIM_MODE="fixed",
                PYTHONUNBUFFERED="1")
     up = Service("up", ["--secure-dir", str(secrets_dir), "--router-endpoint", endpoint], env, tmp_path)
     root = f"zensim/{robot_id}"
