@@ -51,3 +51,46 @@ def test_a_long_unknown_name_is_not_echoed_whole() -> None:
     with pytest.raises(panel.PanelError) as info:
         panel.parse_client_message({"type": "targets", "names": ["x" * 100_000], "q": [0.1]}, LIMITS)
     assert len(str(info.value)) < 300
+
+
+def test_a_running_viz_answers_hostile_page_messages_and_keeps_serving(start_service) -> None:
+    """Raw websocket messages as a hostile page would send them, to a real `zensim viz`."""
+    import asyncio
+    import json as jsonlib
+
+    import tornado.websocket
+
+    from support import wait_for
+    from test_viz_access import start_viz
+
+    viz, port = start_viz(start_service)
+    hostile = [
+        "not json at all", "[" * 20_000 + "]" * 20_000, '{"type": "targets", "names": ["\\ud800"], "q": [0.1]}', '{"type": "targets", "names": ["x"], "q": [NaN]}',
+        '{"type": "targets", "names": ["elbow"], "q": [1e300]}', jsonlib.dumps({"type": "targets", "names": ["j" * 60_000], "q": [0.1]}),
+        '{"type": "ctl", "verb": "pause", "extra": 1}', "{}", "42",
+    ]
+
+    async def send_all() -> list[dict]:
+        conn = await tornado.websocket.websocket_connect(f"ws://127.0.0.1:{port}/ws")
+        errors: list[dict] = []
+        for message in hostile:
+            await conn.write_message(message)
+        while len(errors) < len(hostile):
+            reply = await asyncio.wait_for(conn.read_message(), 10)
+            if isinstance(reply, str) and jsonlib.loads(reply).get("type") == "error":
+                errors.append(jsonlib.loads(reply))
+        # Over the 64 KiB message cap: tornado closes this connection, the viz goes on.
+        await conn.write_message("x" * 200_000)
+        assert await asyncio.wait_for(conn.read_message(), 10) is None, "the oversize message did not close the socket"
+        conn.close()
+        return errors
+
+    errors = asyncio.run(send_all())
+    assert all(e["error"] and len(e["error"]) < 300 for e in errors), errors
+    assert viz.alive()
+    wait_for(lambda: "refused a browser message" in viz.log(), 5, "the refusals logged")
+    assert "Traceback" not in viz.log(), viz.log()[-3000:]
+    # A fresh page still gets served.
+    import urllib.request
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=5) as page:
+        assert page.status == 200

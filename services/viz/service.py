@@ -335,7 +335,7 @@ class VizService:
         try:
             command = panel.parse_client_message(data, self.limits)
         except panel.PanelError as exc:
-            self.hub.reply(client, {"type": "error", "error": str(exc)})
+            self.hub.refuse(client, str(exc))
             return
         if isinstance(command, JointTargets):
             self.cmd_publisher.put(command)

@@ -85,6 +85,8 @@ class Hub:
     def __init__(self, on_message: Callable[[Client, Any], None]) -> None:
         self.on_message = on_message
         self.clients: set[Client] = set()
+        self.refused = 0
+        """Browser messages refused (not JSON, malformed, unknown joints, ...) since start."""
         self.generation = 0
         self.scene: list[bytes] = []
         self.robot_meta: dict | None = None
@@ -151,6 +153,12 @@ class Hub:
         if client in self.clients:
             client.send(json.dumps(message), binary=False)
 
+    def refuse(self, client: Client, reason: str) -> None:
+        """Count a browser message that was refused, log it (rate-limited) and tell the page why."""
+        self.refused += 1
+        refusals.warning("refused a browser message: %s (%d refused so far)", reason, self.refused)
+        self.reply(client, {"type": "error", "error": reason})
+
     # --- connections ---------------------------------------------------------
     def opened(self, client: Client) -> None:
         self.clients.add(client)
@@ -211,8 +219,8 @@ class VizSocket(Guarded, tornado.websocket.WebSocketHandler):
             return
         try:
             data = json.loads(message)
-        except ValueError:
-            logger.debug("browser sent non-JSON text; ignored")
+        except (ValueError, RecursionError) as exc:  # deep nesting surfaces as RecursionError
+            self.hub.refuse(self.client, f"not a JSON message ({type(exc).__name__})")
             return
         if isinstance(data, dict) and data.get("type") == "ack":
             self.hub.ack(self.client)
