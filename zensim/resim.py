@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Sequence
-from typing import ClassVar
+from typing import Annotated, ClassVar
 from dataclasses import dataclass, field
 
 import mujoco
@@ -52,9 +52,9 @@ class ResimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """The URDF the recording was made with, if not a bundled robot."""
     control: str | None = None
     """Its control file (default: control.toml beside it)."""
-    max_kp: float = 5000.0
+    max_kp: Annotated[float, msgspec.Meta(gt=0, le=1e6)] = 5000.0
     """Largest accepted kp, as the recording sim had it, N m/rad."""
-    max_kd: float = 500.0
+    max_kd: Annotated[float, msgspec.Meta(gt=0, le=1e5)] = 500.0
     """Largest accepted kd, as the recording sim had it, N m s/rad."""
 
 

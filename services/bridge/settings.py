@@ -19,9 +19,9 @@ class BridgeSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     """Rate of MotorCommand on cmd/motors, Hz (1 to 1000)."""
     targets_rate_hz: Annotated[float, msgspec.Meta(ge=0, le=MAX_RATE_HZ)] = 30.0
     """Rate of the held targets on state/targets (the viewer's ghost), Hz; 0 turns it off."""
-    slew_rad_s: Annotated[float, msgspec.Meta(ge=0)] = 2.0
+    slew_rad_s: Annotated[float, msgspec.Meta(ge=0, le=1000)] = 2.0
     """Slew limit: most a commanded joint position moves per second, rad/s; 0 turns it off."""
-    info_timeout_s: Annotated[float, msgspec.Meta(gt=0)] = 1.0
+    info_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
     """How long each query of the sim's info/robot waits before it is retried, s."""
     robot: str | None = None
     """Bundled robot (e.g. g1) to read joints, limits and gains from instead of asking the sim."""

@@ -26,7 +26,7 @@ class VizSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     """Draw the translucent commanded pose (state/targets)."""
     ghost_offset_m: tuple[float, ...] = (0.0, 0.9, 0.0)
     """Where the ghost stands relative to the robot, x,y,z in m, world frame (default: beside it; 0,0,0: over it)."""
-    query_timeout_s: Annotated[float, msgspec.Meta(gt=0)] = 5.0
+    query_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 5.0
     """Timeout of each zenoh get (description, ctl requests), s."""
     allowed_hosts: tuple[str, ...] = ()
     """Extra Host names the page answers to, comma-separated (loopback names, IP addresses and --host always;
