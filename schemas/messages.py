@@ -169,6 +169,11 @@ class SimStatus(Message, tag="sim_status", kw_only=True):
     """`realtime` (paced by `target_rtf`) or `lockstep` (each motor command advances the physics)."""
     waiting: bool = False
     """Lockstep: true while the sim stands still waiting for the next motor command."""
+    episode: str = ""
+    """Names the stretch of simulation since the robot was last put into a pose by the sim itself
+    (start, ctl/reset, a mode switch, an automatic reset). A new value tells a client that holds
+    targets (the bridge) to hold the default pose of `mode` again; a new `run_id` with it means the
+    robot itself may have changed. Opaque: compare it, do not parse it. Empty from a sim that does not say."""
 
 
 # --- commands -------------------------------------------------------------
@@ -315,6 +320,8 @@ class CtlReply(Message, tag="ctl_reply", kw_only=True):
     """Mode after the request."""
     steps: int = 0
     """Physics steps since the last reset, after the request."""
+    episode: str = ""
+    """SimStatus.episode after the request: a reset or mode switch starts a new one."""
 
 
 # --- description -----------------------------------------------------------
@@ -391,6 +398,9 @@ class RobotInfo(Message, tag="robot_info", kw_only=True):
     """The sim's clock, as in SimStatus.clock."""
     lockstep_steps: int = 0
     """Lockstep: physics steps each motor command advances (0 under the realtime clock)."""
+    episode: str = ""
+    """The episode (SimStatus.episode) this description was given in: a client that learns the robot
+    here knows from the first SimStatus whether the sim reset meanwhile."""
 
 
 # --- lockstep (clock = lockstep) ---------------------------------------------

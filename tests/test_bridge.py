@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import math
 
+import msgspec
 import numpy as np
 import pytest
 
 from zensim.bridge.settings import BridgeSettings
 from zensim.bridge.targets import HeldTargets, RobotModel, UnusableRobotInfo
 from zensim.common.settings import SettingsError, load_settings
-from zensim.schemas import Gains, RobotInfo
+from zensim.schemas import Codec, DecodeError, Gains, JointTargets, RobotInfo
 
 NAMES = ("hip", "knee", "elbow")
 
@@ -26,6 +27,7 @@ def robot_info(mode: str = "floating") -> RobotInfo:
                "fixed": Gains(kp=(10.0, 10.0, 3.0), kd=(1.0, 1.0, 0.1))},
         base_height_m={"floating": 0.8, "fixed": 1.2}, mode=mode,  # type: ignore[arg-type]
         timestep_s=0.002, state_rate_hz=100.0, status_rate_hz=10.0, watchdog_timeout_s=0.5,
+        run_id="run", episode="run.0",
     )
 
 
@@ -53,6 +55,10 @@ class TestRobotModel:
             RobotModel.from_info(RobotInfo(**{**fields, **change}))
 
 
+def targets(names: tuple, q: tuple, dq: tuple | None = None) -> JointTargets:
+    return JointTargets(names=names, q=q, dq=dq)
+
+
 class TestApply:
     def test_starts_at_the_default_pose_of_the_current_mode(self) -> None:
         assert held().q.tolist() == [-0.4, 0.9, 0.0]
@@ -60,55 +66,62 @@ class TestApply:
 
     def test_partial_targets_merge_and_hold_the_rest(self) -> None:
         h = held()
-        assert h.apply(("knee",), (1.2,)).accepted
-        assert h.apply(("elbow", "hip"), (0.5, 0.1)).accepted
+        assert h.apply(targets(("knee",), (1.2,))).accepted
+        assert h.apply(targets(("elbow", "hip"), (0.5, 0.1))).accepted
         assert h.target_q.tolist() == [0.1, 1.2, 0.5]
 
-    @pytest.mark.parametrize("names, q, why", [
-        (("knee", "wrist"), (1.0, 0.0), "unknown joint"),
-        (("knee", "elbow"), (1.0, math.nan), "not finite"),
-        (("knee", "elbow"), (1.0, math.inf), "not finite"),
-        (("knee", "elbow"), (1.0, "x"), "not a number"),
-        (("knee", "elbow"), (1.0, True), "not a number"),
-        (("knee", "knee"), (1.0, 1.0), "more than once"),
-        (("knee", "elbow"), (1.0,), "names"),
-    ])
-    def test_a_bad_input_is_rejected_whole(self, names: tuple, q: tuple, why: str) -> None:
+    def test_an_unknown_joint_rejects_the_input_whole(self) -> None:
         h = held()
         before = h.target_q.copy()
-        verdict = h.apply(names, q)
+        verdict = h.apply(targets(("knee", "wrist"), (1.0, 0.0)))
         assert not verdict.accepted
-        assert why in (verdict.error or "")
+        assert "unknown joint" in (verdict.error or "") and "wrist" in (verdict.error or "")
         assert h.target_q.tolist() == before.tolist()
 
-    def test_a_non_finite_dq_is_rejected(self) -> None:
-        h = held()
-        assert not h.apply(("knee",), (1.0,), (math.nan,)).accepted
-        assert h.target_q[1] == 0.9
+    @pytest.mark.parametrize("names, q, dq, why", [
+        (("knee", "elbow"), (1.0, math.nan), None, "finite"),
+        (("knee", "elbow"), (1.0, math.inf), None, "finite"),
+        (("knee",), (1.0,), (math.nan,), "finite"),
+        (("knee", "knee"), (1.0, 1.0), None, "more than once"),
+        (("knee", "elbow"), (1.0,), None, "names"),
+    ])
+    def test_a_malformed_input_cannot_reach_the_held_targets(self, names: tuple, q: tuple, dq: tuple | None,
+                                                              why: str) -> None:
+        """Shape and finiteness are checked once, by the schema: such a JointTargets cannot be made,
+        so neither a decoded message nor the bridge's own single-joint path can carry one."""
+        with pytest.raises(ValueError, match=why):
+            targets(names, q, dq)
+        with pytest.raises(DecodeError, match=why):
+            Codec(JointTargets).decode(msgspec.msgpack.encode({"names": names, "q": q, "dq": dq}))
+
+    def test_a_value_that_is_not_a_number_does_not_decode(self) -> None:
+        for q in (["x"], [True]):
+            with pytest.raises(DecodeError):
+                Codec(JointTargets).decode(msgspec.json.encode({"names": ["knee"], "q": q}), "application/json")
 
     def test_targets_beyond_the_limits_are_clamped_and_named(self) -> None:
         h = held()
-        verdict = h.apply(("hip", "knee", "elbow"), (-3.0, 1.0, 9.0))
+        verdict = h.apply(targets(("hip", "knee", "elbow"), (-3.0, 1.0, 9.0)))
         assert verdict.accepted and verdict.clamped == ("hip", "elbow")
         assert h.target_q.tolist() == [-1.0, 1.0, 2.0]
 
     def test_dq_is_held_per_joint_and_cleared_by_a_position_only_input(self) -> None:
         h = held()
-        h.apply(("knee", "elbow"), (1.0, 0.0), (0.5, -0.5))
+        h.apply(targets(("knee", "elbow"), (1.0, 0.0), (0.5, -0.5)))
         assert h.target_dq.tolist() == [0.0, 0.5, -0.5]
-        h.apply(("knee",), (1.1,))
+        h.apply(targets(("knee",), (1.1,)))
         assert h.target_dq.tolist() == [0.0, 0.0, -0.5]
 
 
 class TestSlew:
     def test_off_jumps_to_the_target(self) -> None:
         h = held(slew=0.0)
-        h.apply(("elbow",), (1.5,))
+        h.apply(targets(("elbow",), (1.5,)))
         assert h.step(0.01)[2] == 1.5
 
     def test_moves_at_most_slew_times_dt_per_tick(self) -> None:
         h = held(slew=2.0)
-        h.apply(("elbow", "hip"), (1.5, -0.5))
+        h.apply(targets(("elbow", "hip"), (1.5, -0.5)))
         trajectory = [h.step(0.01).copy() for _ in range(100)]
         steps = np.abs(np.diff(np.array(trajectory)[:, 2]))
         assert steps.max() <= 0.02 + 1e-12
@@ -119,7 +132,7 @@ class TestSlew:
 
     def test_a_stall_does_not_turn_into_a_jump(self) -> None:
         h = held(slew=2.0)
-        h.apply(("elbow",), (1.5,))
+        h.apply(targets(("elbow",), (1.5,)))
         assert h.step(5.0)[2] == pytest.approx(0.2)  # MAX_TICK_S worth, not 10 rad
 
     def test_negative_slew_is_refused(self) -> None:
@@ -128,33 +141,35 @@ class TestSlew:
 
 
 class TestFollowSim:
-    def test_first_status_sets_the_baseline(self) -> None:
+    def test_the_episode_the_robot_was_described_in_changes_nothing(self) -> None:
         h = held(slew=2.0)
-        h.apply(("elbow",), (1.5,))
-        assert not h.follow_sim("floating", 7)
+        h.apply(targets(("elbow",), (1.5,)))
+        assert not h.follow_sim("run.0", "floating")
         assert h.target_q[2] == 1.5
 
-    def test_a_reset_holds_the_default_pose_not_stale_targets(self) -> None:
+    def test_a_new_episode_holds_the_default_pose_not_stale_targets(self) -> None:
         h = held(slew=2.0)
-        h.follow_sim("floating", 0)
-        h.apply(("elbow",), (1.5,))
+        h.apply(targets(("elbow",), (1.5,)))
         h.step(0.1)
-        assert h.follow_sim("floating", 1)
+        assert h.follow_sim("run.1", "floating")
         assert h.target_q.tolist() == h.q.tolist() == [-0.4, 0.9, 0.0]
-        assert not h.follow_sim("floating", 1)
+        h.apply(targets(("elbow",), (1.5,)))
+        assert not h.follow_sim("run.1", "floating")  # the same episode again: targets stay
+        assert h.target_q[2] == 1.5
 
     def test_a_mode_change_takes_the_new_pose_and_gains(self) -> None:
         h = held()
-        h.apply(("elbow",), (1.5,))
-        assert h.follow_sim("fixed", 0)
+        h.apply(targets(("elbow",), (1.5,)))
+        assert h.follow_sim("run.1", "fixed")
         assert h.q.tolist() == [0.0, 0.0, 0.0]
         assert h.gains()[0].tolist() == [10.0, 10.0, 3.0]
 
     def test_an_unknown_mode_keeps_the_targets(self) -> None:
         h = held()
         with pytest.raises(UnusableRobotInfo):
-            h.follow_sim("flying", 0)  # type: ignore[arg-type]
+            h.follow_sim("run.1", "flying")  # type: ignore[arg-type]
         assert h.mode == "floating"
+        assert h.episode == "run.0"
 
 
 class TestSettings:

@@ -240,6 +240,7 @@ class TestControl:
         stepped = ctl(zsession, keys.ctl("step"), {"n": 50})
         assert stepped["ok"]
         assert stepped["steps"] == paused["steps"] + 50
+        assert stepped["episode"] == paused["episode"] != "", "stepping is not a new episode"
         joints.wait(lambda m: m.sim_time_s == pytest.approx(t_paused + 50 * 0.002, abs=1e-9), what="the stepped state")
 
         # Reset to a pose and height of our own, while still paused so that the pose is seen exactly
@@ -248,6 +249,8 @@ class TestControl:
         knee = joint_index(info, "left_knee_joint")
         reset = ctl(zsession, keys.ctl("reset"), {"names": ["left_knee_joint"], "q": [1.2], "base_height_m": 1.5})
         assert reset["ok"] and reset["steps"] == 0 and reset["paused"], "a reset must not resume a paused sim"
+        assert reset["episode"] != paused["episode"], "a reset starts a new episode"
+        assert robot_info(zsession, keys)["episode"] == reset["episode"]
         state = joints.wait(lambda m: m.sim_time_s == 0.0, what="the state of the reset instant")
         assert state.q[knee] == pytest.approx(1.2, abs=1e-6)
         assert odom.wait(lambda m: m.sim_time_s == 0.0).pos[2] == pytest.approx(1.5, abs=1e-6)
@@ -266,11 +269,14 @@ class TestControl:
         # Mode switch: fixed base at 0.79 m with gravity off, and info/robot follows.
         switched = ctl(zsession, keys.ctl("mode"), {"mode": "fixed"})
         assert switched["ok"] and switched["mode"] == "fixed"
+        assert switched["episode"] not in (paused["episode"], reset["episode"]), "a mode switch starts a new episode"
         assert robot_info(zsession, keys)["mode"] == "fixed"
         time.sleep(0.5)
         assert odom.value.pos[2] == pytest.approx(info["base_height_m"]["fixed"], abs=1e-6)
         back = ctl(zsession, keys.ctl("reset"), {"mode": "floating"})
         assert back["ok"] and back["mode"] == "floating"
+        status = Latest(zsession, keys.sim_status, SimStatus)
+        assert status.wait(lambda m: m.episode == back["episode"], what="the status of the new episode")
 
     def test_info_urdf_and_mesh(self, start_service, zsession, robot_id, tmp_path: Path) -> None:
         urdf = write_mesh_arm(tmp_path)

@@ -3,8 +3,8 @@
 Reads:
     {robot}/cmd/joints          JointTargets (msgpack or JSON), partial, merged into the held targets
     {robot}/cmd/joint/{joint}   a bare number (JSON, plain text or msgpack) for one joint
-    {robot}/state/sim           SimStatus: `mode` and `resets` (a change -> hold the default pose),
-                                `run_id` (a new one: the sim restarted -> learn the robot again)
+    {robot}/state/sim           SimStatus: a new `episode` -> hold the default pose of `mode`;
+                                with a new `run_id` the sim restarted -> learn the robot again
     {robot}/info/robot          RobotInfo, queried at start and after a sim restart
 Writes:
     {robot}/cmd/motors          MotorCommand (q, dq; kp, kd only with local robot files) at rate_hz
@@ -117,7 +117,6 @@ class Bridge:
             self._gains: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
                 mode: (tuple(model.kp[mode].tolist()), tuple(model.kd[mode].tolist())) for mode in model.kp
             }
-            self._run_id = model.run_id
             self.sim_restarted.clear()
 
     # --- inputs (zenoh threads) -------------------------------------------
@@ -129,7 +128,7 @@ class Bridge:
         except DecodeError as exc:
             self._report(key, Verdict(False, str(exc)))
             return
-        self._apply(key, message.names, message.q, message.dq)
+        self._apply(key, message)
 
     def _on_joint(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -139,11 +138,11 @@ class Bridge:
         except (DecodeError, ValueError) as exc:
             self._report(key, Verdict(False, str(exc)))
             return
-        self._apply(key, (joint,), (value,), None)
+        self._apply(key, JointTargets(names=(joint,), q=(value,)))
 
-    def _apply(self, key: str, names: tuple[str, ...], q: tuple[float, ...], dq: tuple[float, ...] | None) -> None:
+    def _apply(self, key: str, targets: JointTargets) -> None:
         with self._lock:
-            verdict = self._held.apply(names, q, dq)
+            verdict = self._held.apply(targets)
         self._report(key, verdict)
 
     def _on_status(self, sample: zenoh.Sample) -> None:
@@ -156,30 +155,18 @@ class Bridge:
             with self._lock:
                 if self.sim_restarted.is_set():
                     return  # the loop is learning the new sim's robot; its statuses count after that
-                if self._new_sim_run(status.run_id):
-                    logger.info("the sim restarted (run %s): holding the default pose", status.run_id)
-                    if not self._from_files:
-                        self.sim_restarted.set()  # it may run another robot: the loop asks info/robot
-                        return
-                    self._held = HeldTargets(self._held.model, self._slew_rad_s)
-                reset = self._held.follow_sim(status.mode, status.resets)
+                if status.episode == self._held.episode:
+                    return  # the common case: nothing happened
+                model = self._held.model
+                if status.run_id != model.run_id and not self._from_files:
+                    logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
+                    self.sim_restarted.set()  # it may run another robot: the loop asks info/robot
+                    return
+                self._held.follow_sim(status.episode, status.mode)
         except UnusableRobotInfo as exc:
             self._status_log.warning("%s; keeping the current targets", exc)
             return
-        if reset:
-            logger.info("sim reset or mode change (mode %s, resets %d): holding the default pose",
-                        status.mode, status.resets)
-
-    def _new_sim_run(self, run_id: str) -> bool:
-        """Note the sim's run id; True when it replaces a known one, i.e. the sim restarted.
-
-        Call with the lock held. A restarted sim counts its resets from 0 again, so the reset
-        counter alone would miss it and the bridge would drive the new sim to stale targets.
-        """
-        if not run_id or run_id == self._run_id:
-            return False  # a sim that does not say, or the same run
-        known, self._run_id = self._run_id, run_id
-        return bool(known)  # the first id seen (robot from local files) is only a baseline
+        logger.info("new sim episode (mode %s, resets %d): holding the default pose", status.mode, status.resets)
 
     def _report(self, key: str, verdict: Verdict) -> None:
         """Count, log (rate-limited) and publish the verdict on an input that was rejected or clamped."""

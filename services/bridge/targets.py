@@ -2,25 +2,26 @@
 
 No zenoh here, so every rule can be tested without a network:
 
-- an input naming an unknown joint, or carrying a NaN or an infinity, is rejected whole:
-  nothing of it is applied (a half-applied slider message would leave the robot in a pose
-  nobody asked for);
+- an input naming an unknown joint is rejected whole: nothing of it is applied (a half-applied
+  slider message would leave the robot in a pose nobody asked for); its shape and finiteness were
+  already checked once, by the schema (JointTargets), when it was decoded;
 - targets beyond the joint limits are clamped, and the clamped joints are reported;
 - the commanded q moves toward the held target by at most `slew_rad_s * dt` per tick, so a
   slider jump does not throw the robot over (a PD-only robot has no balance to catch it);
-- after a sim reset or a mode change the held targets become the (new) mode's default pose,
-  since the robot was just put there and stale targets would yank it away.
+- when the sim starts a new episode (SimStatus.episode: a reset, a mode switch, a restart) the held
+  targets become the (new) mode's default pose, since the robot was just put there and stale
+  targets would yank it away.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from zensim.schemas import Mode, RobotInfo, short_repr
+from zensim.schemas import JointTargets, Mode, RobotInfo, short_repr
 
 MAX_TICK_S = 0.1
 """Longest tick the slew limit accounts for: after a stall the q must not jump by seconds' worth."""
@@ -47,6 +48,8 @@ class RobotModel:
     """The mode the robot is in when the description was taken."""
     run_id: str = ""
     """The sim run that described the robot (RobotInfo.run_id); empty for local files."""
+    episode: str = ""
+    """The sim's episode when it described the robot (RobotInfo.episode); empty for local files."""
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)
@@ -84,6 +87,7 @@ class RobotModel:
             kd={mode: np.asarray(g.kd, float) for mode, g in info.gains.items()},
             mode=info.mode,
             run_id=info.run_id,
+            episode=info.episode,
         )
 
     @classmethod
@@ -140,12 +144,14 @@ class HeldTargets:
     target_dq: np.ndarray = field(init=False)
     q: np.ndarray = field(init=False)
     """The commanded q: slew-limited, moving toward target_q."""
-    _resets: int | None = field(init=False, default=None)
+    episode: str = field(init=False)
+    """The sim episode the held targets belong to."""
 
     def __post_init__(self) -> None:
         if not (self.slew_rad_s >= 0 and math.isfinite(self.slew_rad_s)):
             raise ValueError(f"slew_rad_s must be finite and >= 0, got {self.slew_rad_s}")
         self._index = {name: i for i, name in enumerate(self.model.joint_names)}
+        self.episode = self.model.episode
         self.hold_default(self.model.mode)
 
     @property
@@ -159,56 +165,44 @@ class HeldTargets:
         self.target_dq = np.zeros_like(self.target_q)
         self.q = self.target_q.copy()
 
-    def follow_sim(self, mode: Mode, resets: int) -> bool:
-        """Track the sim's mode and reset counter; hold the default pose when either changed.
-
-        The first status seen only sets the baseline (the bridge may start long after the
-        sim's last reset), unless its mode differs from the one assumed.
+    def follow_sim(self, episode: str, mode: Mode) -> bool:
+        """Hold `mode`'s default pose when the sim has started a new episode (SimStatus.episode).
 
         Returns:
             True when the held targets were reset.
 
         Raises:
-            UnusableRobotInfo: the sim switched to a mode the description has no data for.
+            UnusableRobotInfo: the new episode is in a mode the description has no data for.
         """
-        changed = mode != self.mode or (self._resets is not None and resets != self._resets)
-        if changed and not self.model.has_mode(mode):
+        if episode == self.episode:
+            return False
+        if not self.model.has_mode(mode):
             raise UnusableRobotInfo(f"sim is in mode {mode!r}, which the robot description lacks")
-        self._resets = resets
-        if changed:
-            self.hold_default(mode)
-        return changed
+        self.episode = episode
+        self.hold_default(mode)
+        return True
 
-    def apply(self, names: Sequence[str], q: Sequence[float], dq: Sequence[float] | None = None) -> Verdict:
+    def apply(self, targets: JointTargets) -> Verdict:
         """Merge a partial target into the held targets, all or nothing.
 
+        `targets` is a JointTargets, so its shape and values are already checked (unique names,
+        matching lengths, finite numbers); what is left is what only the robot knows.
+
         Returns:
-            Rejected (nothing applied) for an unknown or repeated joint, mismatched lengths or a
-            non-finite value; accepted otherwise, naming the joints clamped to their limits.
+            Rejected (nothing applied) when it names a joint the robot does not have; accepted
+            otherwise, naming the joints clamped to their limits.
         """
-        if len(q) != len(names) or (dq is not None and len(dq) != len(names)):
-            return Verdict(False, f"{len(names)} names but {len(q)} q" + ("" if dq is None else f", {len(dq)} dq"))
-        if len(set(names)) != len(names):
-            return Verdict(False, "names a joint more than once")
+        names = targets.names
         unknown = [name for name in names if name not in self._index]
         if unknown:
             shown = ", ".join(short_repr(name) for name in unknown[:3])
             return Verdict(False, f"unknown joint(s): {shown}" + (f" and {len(unknown) - 3} more" if len(unknown) > 3 else ""))
-        for label, values in (("q", q), ("dq", dq)):
-            if values is None:
-                continue
-            for name, value in zip(names, values):
-                if isinstance(value, bool) or not isinstance(value, (int, float)):
-                    return Verdict(False, f"{label} of {name} is not a number: {short_repr(value)}")
-                if not math.isfinite(value):
-                    return Verdict(False, f"{label} of {name} is not finite: {value}")
         idx = np.fromiter((self._index[name] for name in names), int, len(names))
-        wanted = np.asarray(q, float)
-        lo, hi = self.model.q_min[idx], self.model.q_max[idx]
-        held = np.clip(wanted, lo, hi)
+        wanted = np.asarray(targets.q, float)
+        held = np.clip(wanted, self.model.q_min[idx], self.model.q_max[idx])
         clamped = tuple(names[i] for i in np.flatnonzero(held != wanted))
         self.target_q[idx] = held
-        self.target_dq[idx] = 0.0 if dq is None else np.asarray(dq, float)
+        self.target_dq[idx] = 0.0 if targets.dq is None else np.asarray(targets.dq, float)
         return Verdict(True, clamped=clamped)
 
     def step(self, dt_s: float) -> np.ndarray:

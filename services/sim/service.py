@@ -166,7 +166,13 @@ class SimService:
 
     def _on_info(self, query: zenoh.Query) -> None:
         fmt = "json" if _wants_json(query) or self._payload_is_json(query) else "msgpack"
-        reply(query, self.keys.robot_info, self._info, fmt, self.info_codec)
+        info = msgspec.structs.replace(self._info, episode=self.episode())
+        reply(query, self.keys.robot_info, info, fmt, self.info_codec)
+
+    def episode(self) -> str:
+        """SimStatus.episode: new at every reset (mode switches and automatic resets are resets too)
+        and in every run, since `resets` counts from 0 again in a restarted sim."""
+        return f"{self.run_id}.{self.sim.resets}"
 
     def _on_urdf(self, query: zenoh.Query) -> None:
         query.reply(self.keys.urdf, self.sim.robot.urdf_text.encode(), encoding=zenoh.Encoding.APPLICATION_XML)
@@ -258,7 +264,8 @@ class SimService:
 
     def _status_reply(self, ok: bool = True, error: str | None = None) -> CtlReply:
         sim = self.sim
-        return CtlReply(ok=ok, error=error, sim_time_s=sim.sim_time_s, paused=self.paused, mode=sim.mode, steps=sim.steps)
+        return CtlReply(ok=ok, error=error, sim_time_s=sim.sim_time_s, paused=self.paused, mode=sim.mode, steps=sim.steps,
+                        episode=self.episode())
 
     def _reset(self, request: ResetRequest) -> CtlReply:
         mode_before = self.sim.mode
@@ -362,6 +369,7 @@ class SimService:
                 rejected_requests=self.request_refusals.count,
                 clock=self.settings.clock,
                 waiting=self.lockstep is not None and self.lockstep.waiting,
+                episode=self.episode(),
             )
         )
 
