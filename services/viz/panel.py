@@ -9,7 +9,6 @@ values are clamped to the joint limits the page shows.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Final, Literal
@@ -112,12 +111,14 @@ def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets 
         case PageTargets(names=names, q=q):
             if limits is None:
                 raise PanelError("no robot description yet")
-            if not names or len(names) != len(q):
-                raise PanelError("targets need `names` and `q` of the same, non-zero length")
-            limits.check(names)
-            if not all(math.isfinite(value) for value in q):
-                raise PanelError("targets must be finite numbers")
-            return JointTargets(names=tuple(names), q=tuple(limits.clamp(n, float(v)) for n, v in zip(names, q)))
+            if not names:
+                raise PanelError("targets name no joint")
+            try:  # shape and finiteness: the schema's own checks, once
+                targets = JointTargets(names=tuple(names), q=tuple(q))
+            except ValueError as exc:
+                raise PanelError(bounded(f"refused: {exc}")) from None
+            limits.check(targets.names)
+            return JointTargets(names=targets.names, q=tuple(limits.clamp(n, v) for n, v in zip(names, q)))
         case PageCtl(verb=verb):
             return Ctl(verb=verb)
         case PageMode(mode=mode):
