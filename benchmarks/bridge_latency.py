@@ -21,22 +21,17 @@ every sim path; 500 Hz (every physics step) keeps that small.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import random
-import signal
-import socket
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 import zenoh
 
+from harness import Processes, client_config, free_port, is_alive, wait_for
 from zensim.common.wire import payload_of
 from zensim.schemas import Codec, JointState, JointTargets, Keys, MotorCommand, RobotInfo
 
@@ -54,53 +49,6 @@ with zenoh.open(conf) as s:
     token = s.liveliness().declare_token("%s/bench/echo")
     threading.Event().wait()
 """
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def wait_until(condition: Callable[[], object], timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"timed out waiting for {what}")
-        time.sleep(0.02)
-
-
-class Processes:
-    """Child processes with logs in a temporary folder; all stopped on exit. The benchmarks share it."""
-
-    def __init__(self, env: dict[str, str], prefix: str = "bridge-bench-") -> None:
-        self.env = env
-        self.dir = Path(tempfile.mkdtemp(prefix=prefix))
-        self.procs: list[subprocess.Popen] = []
-
-    def start(self, name: str, argv: list[str], env: dict[str, str] | None = None) -> subprocess.Popen:
-        log = (self.dir / f"{name}-{len(self.procs)}.log").open("wb")
-        proc = subprocess.Popen(argv, env={**self.env, **(env or {})}, stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
-        self.procs.append(proc)
-        return proc
-
-    def zensim(self, command: str, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
-        return self.start(command, [sys.executable, "-m", "zensim", command, *args], env)
-
-    @staticmethod
-    def stop(proc: subprocess.Popen) -> None:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(5)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(5)
-
-    def stop_all(self) -> None:
-        for proc in reversed(self.procs):
-            self.stop(proc)
 
 
 class TorqueProbe:
@@ -171,21 +119,11 @@ def ping_trials(session: zenoh.Session, root: str, trials: int) -> list[float]:
     return latencies
 
 
-def client_config(endpoint: str) -> zenoh.Config:
-    """A plain client of the benchmark's router that waits for it to come up."""
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("connect/timeout_ms", "-1")
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    return conf
-
-
 def elbow_trials(session: zenoh.Session, keys: Keys) -> tuple[int, np.ndarray, float, float, TorqueProbe]:
     """Ask the sim for its robot; the elbow's index, the default pose, the step's two targets and the probe."""
     codec = Codec(RobotInfo)
     infos: list[RobotInfo] = []
-    wait_until(lambda: infos.extend(codec.decode(*payload_of(r.ok)) for r in session.get(keys.robot_info, timeout=1.0)
+    wait_for(lambda: infos.extend(codec.decode(*payload_of(r.ok)) for r in session.get(keys.robot_info, timeout=1.0)
                                     if r.ok) or infos, 30, "info/robot")
     info = infos[0]
     i = info.joint_names.index(JOINT)
@@ -193,10 +131,6 @@ def elbow_trials(session: zenoh.Session, keys: Keys) -> tuple[int, np.ndarray, f
     kp = info.gains[info.mode].kp[i]
     threshold = 0.4 * min(info.effort_limit[i], kp * 2 * STEP_RAD)
     return i, default, float(default[i]) - STEP_RAD, float(default[i]) + STEP_RAD, TorqueProbe(i, threshold)
-
-
-def is_alive(session: zenoh.Session, key: str) -> bool:
-    return any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5))
 
 
 def main() -> int:
@@ -219,7 +153,7 @@ def main() -> int:
         procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
         with zenoh.open(client_config(endpoint)) as session:
             procs.start("echo", [sys.executable, "-c", ECHO % (endpoint, keys.root, keys.root, keys.root)])
-            wait_until(lambda: is_alive(session, f"{keys.root}/bench/echo"), 30, "the echo process")
+            wait_for(lambda: is_alive(session, f"{keys.root}/bench/echo"), 30, "the echo process")
             if args.pings:
                 rows.append(("bare zenoh round trip (client -> echo -> client)",
                              ping_trials(session, keys.root, args.pings), args.pings))
@@ -251,13 +185,13 @@ def main() -> int:
 
             for rate in args.bridge_rates.split(","):
                 bridge = procs.zensim("bridge", "--rate-hz", rate, "--slew-rad-s", "0")
-                wait_until(lambda: is_alive(session, keys.alive("bridge")), 30, "alive/bridge")
+                wait_for(lambda: is_alive(session, keys.alive("bridge")), 30, "alive/bridge")
                 send_target(float(default[i]))
                 time.sleep(0.5)
                 rows.append((f"bridge {rate} Hz: client -> cmd/joints -> bridge -> sim -> state/joints",
                              run_trials(probe, send_target, args.trials, low, high), args.trials))
-                Processes.stop(bridge)
-                wait_until(lambda: not is_alive(session, keys.alive("bridge")), 10, "the bridge to go")
+                bridge.stop()
+                wait_for(lambda: not is_alive(session, keys.alive("bridge")), 10, "the bridge to go")
             states.undeclare()
     finally:
         procs.stop_all()

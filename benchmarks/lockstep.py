@@ -21,7 +21,6 @@ overhead (round trip - physics time of the 10 steps) as a multiple of the bare r
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import threading
@@ -30,7 +29,7 @@ import time
 import numpy as np
 import zenoh
 
-from bridge_latency import Processes, free_port, is_alive, wait_until
+from harness import Processes, free_port, is_alive, plain_client, wait_for
 from zensim.common.wire import payload_of
 from zensim.robots import robot_files
 from zensim.schemas import AdvanceReply, Codec, JointState, Keys, MotorCommand, RobotInfo, SimStatus
@@ -55,7 +54,7 @@ PAYLOAD_BYTES = 2000
 
 def get_info(session: zenoh.Session, keys: Keys) -> RobotInfo:
     codec, found = Codec(RobotInfo), []
-    wait_until(lambda: found.extend(codec.decode(*payload_of(r.ok)) for r in session.get(keys.robot_info, timeout=1.0)
+    wait_for(lambda: found.extend(codec.decode(*payload_of(r.ok)) for r in session.get(keys.robot_info, timeout=1.0)
                                     if r.ok) or found, 30, "info/robot")
     return found[0]
 
@@ -202,16 +201,11 @@ def main() -> int:
     procs = Processes(env, prefix="lockstep-bench-")
     try:
         procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
-        conf = zenoh.Config()
-        conf.insert_json5("mode", '"client"')
-        conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-        conf.insert_json5("connect/timeout_ms", "-1")
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        with zenoh.open(conf) as session:
+        with plain_client(endpoint) as session:
             procs.start("echo", [sys.executable, "-c", ECHO % {"endpoint": endpoint, "root": keys.root}])
             procs.zensim("sim", "--clock", "lockstep", "--lockstep-steps", "10")
-            wait_until(lambda: is_alive(session, f"{keys.root}/bench/alive"), 30, "the echo process")
-            wait_until(lambda: is_alive(session, keys.alive("sim")), 30, "the lockstep sim")
+            wait_for(lambda: is_alive(session, f"{keys.root}/bench/alive"), 30, "the echo process")
+            wait_for(lambda: is_alive(session, keys.alive("sim")), 30, "the lockstep sim")
             info = get_info(session, keys)
             assert info.clock == "lockstep", "this sim does not know --clock lockstep"
             bare_pubsub(session, keys.root, 200)  # warm-up
@@ -225,7 +219,7 @@ def main() -> int:
             sub_times, sub_sim, sub_wall = lockstep_pubsub(session, keys, info, args.steps)
             physics = physics_alone(info, args.steps)
             procs.zensim("sim", "--rtf", "0", env={"ZENSIM_ROBOT_ID": fast_keys.robot})
-            wait_until(lambda: is_alive(session, fast_keys.alive("sim")), 30, "the --rtf 0 sim")
+            wait_for(lambda: is_alive(session, fast_keys.alive("sim")), 30, "the --rtf 0 sim")
             rtf0 = rtf0_speed(session, fast_keys, args.rtf0_seconds)
     finally:
         procs.stop_all()

@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from bridge_latency import Processes, client_config, elbow_trials, free_port, run_trials
+from bridge_latency import elbow_trials, run_trials
+from harness import Processes, client_config, free_port, rss_mb
 from zensim.common.wire import payload_of
 from zensim.schemas import Codec, Keys, MotorCommand, SimStatus
 
@@ -78,13 +79,6 @@ def pin(pid: int, cpus: set[int]) -> None:
             os.sched_setaffinity(int(task.name), cpus)
         except (ProcessLookupError, PermissionError):
             pass
-
-
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 class Watch:
@@ -202,7 +196,7 @@ def main() -> int:
             for proc in flooders:
                 proc.wait(30)
             for proc in flooders:
-                log = next(procs.dir.glob(f"flood-*-{procs.procs.index(proc)}.log")).read_text().strip().splitlines()
+                log = proc.log().strip().splitlines()
                 flood_rates.append(json.loads(log[-1]) if log and log[-1].startswith("{") else {"error": log[-3:]})
             results["flood"] = watch.window(start + 1.0, end)
             results["flood"]["latencies"] = latencies

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -25,14 +24,10 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from harness import free_port
+
 PING = "zensim/bench/cmd/motors"
 PONG = "zensim/bench/state/joints"
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def client_conf(endpoint: str, secrets: Path | None, role: str) -> zenoh.Config:

@@ -24,20 +24,16 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import mujoco
 import numpy as np
 import zenoh
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "tests"))
-
-from support import Latest, free_port, plain_client  # noqa: E402
-from zensim.robots import robot_files  # noqa: E402
-from zensim.robots.builder import build  # noqa: E402
-from zensim.sim.mjdata import reset  # noqa: E402
-from zensim.schemas import Codec, JointState, Keys, MotorCommand, SimStatus  # noqa: E402
+from harness import Latest, free_port, plain_client
+from zensim.robots import robot_files
+from zensim.robots.builder import build
+from zensim.sim.mjdata import reset
+from zensim.schemas import Codec, JointState, Keys, MotorCommand, SimStatus
 
 
 def start(command: str, *args: str, env: dict[str, str]) -> subprocess.Popen:
@@ -46,7 +42,7 @@ def start(command: str, *args: str, env: dict[str, str]) -> subprocess.Popen:
 
 
 def client(endpoint: str) -> zenoh.Session:
-    return plain_client(endpoint, wait_for_router=True)  # the router may still be starting
+    return plain_client(endpoint)  # waits for the router, which may still be starting
 
 
 def bare_steps_per_s(seconds: float) -> float:

@@ -33,24 +33,23 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 import zenoh
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "tests"))
+from cyclonedds._clayer import ddspy_take, ddspy_write
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
 
-from cyclonedds._clayer import ddspy_take, ddspy_write  # noqa: E402
-from cyclonedds.pub import DataWriter  # noqa: E402
-from cyclonedds.sub import DataReader  # noqa: E402
-from cyclonedds.topic import Topic  # noqa: E402
+from harness import Latest, Processes, cpu_s, free_port, plain_client, test_scaffolding, wait_for
+from zensim.common.wire import payload_of
+from zensim.schemas import MSGPACK, Codec, JointState, Keys, MotorCommand, SimStatus, UnitreeStatus
+from zensim.unitree.idl import Request_
 
-from support import Latest, Service, free_port, plain_client, wait_for  # noqa: E402
-from unitree_sdk import KD, KP, SdkClient, low_cmd_crc, new_low_cmd, unused_domain_id  # noqa: E402
-from zensim.common.wire import payload_of  # noqa: E402
-from zensim.schemas import MSGPACK, Codec, JointState, Keys, MotorCommand, SimStatus, UnitreeStatus  # noqa: E402
-from zensim.unitree.idl import Request_  # noqa: E402
+sdk = test_scaffolding("unitree_sdk")  # an SDK-style client: what a unitree_sdk2 controller sends
+KD, KP, SdkClient, low_cmd_crc, new_low_cmd, unused_domain_id = (
+    sdk.KD, sdk.KP, sdk.SdkClient, sdk.low_cmd_crc, sdk.new_low_cmd, sdk.unused_domain_id)
 
 ELBOW = 18
 PULSE_NM = 8.0
@@ -82,11 +81,6 @@ while True:
             if info.valid_data:
                 ddspy_write(w._ref, data)
 """
-
-
-def cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def percentiles(values: list[float]) -> str:
@@ -165,16 +159,14 @@ def main() -> None:
     parser.add_argument("--cpu-seconds", type=float, default=10.0, help="length of the CPU/RTF phase, s")
     args = parser.parse_args()
 
-    import tempfile
-    tmp = Path(tempfile.mkdtemp(prefix="unitree-bench-"))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     robot = "bench" + str(random.randint(0, 10**6))
     domain = unused_domain_id()
     base = dict(os.environ, ZENSIM_ROBOT_ID=robot, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
-    router = Service("router", [], dict(base, ZENSIM_ZENOH_LISTEN=endpoint), tmp)
-    client_env = dict(base, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint)
-    sim = Service("sim", ["--mode", "fixed", "--rtf", "1", "--state-rate-hz", str(args.state_rate_hz)], client_env, tmp)
-    adapter = Service("unitree", ["--domain-id", str(domain), "--status-rate-hz", "10"], client_env, tmp)
+    procs = Processes(dict(base, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint), prefix="unitree-bench-")
+    procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
+    sim = procs.zensim("sim", "--mode", "fixed", "--rtf", "1", "--state-rate-hz", str(args.state_rate_hz))
+    adapter = procs.zensim("unitree", "--domain-id", str(domain), "--status-rate-hz", "10")
     import subprocess
     echo = subprocess.Popen([sys.executable, "-c", ECHO, str(domain)], stdout=subprocess.PIPE, text=True)
     try:
@@ -183,9 +175,8 @@ def main() -> None:
         client = SdkClient(domain)
         keys = Keys(robot)
         with plain_client(endpoint) as session:
-            status = Latest(session, keys.sim_status, SimStatus)
+            status = Latest(session, keys.sim_status, SimStatus, keep_history=True)
             adapter_status = Latest(session, keys.unitree_status, UnitreeStatus)
-            status.keep_history = True
             first = client.wait_state()
 
             # Bare DDS round trip.
@@ -276,13 +267,13 @@ def main() -> None:
             holder = threading.Thread(target=hold_loop, daemon=True)
             holder.start()
             time.sleep(1.0)
-            cpu0 = {p.command: cpu_s(p.proc.pid) for p in (sim, adapter)}
+            cpu0 = {name: cpu_s(p.pid) for name, p in (("sim", sim), ("unitree", adapter))}
             lowstates0 = adapter_status.value.lowstate_published if adapter_status.value else 0
             wall0 = time.monotonic()
             status.history.clear()
             time.sleep(args.cpu_seconds)
             wall = time.monotonic() - wall0
-            cpu = {name: 100 * (cpu_s(p.proc.pid) - cpu0[name]) / wall for name, p in (("sim", sim), ("unitree", adapter))}
+            cpu = {name: 100 * (cpu_s(p.pid) - cpu0[name]) / wall for name, p in (("sim", sim), ("unitree", adapter))}
             rtfs = [s.rtf for s in status.history if s.rtf > 0]
             lowstate_hz = (adapter_status.value.lowstate_published - lowstates0) / wall
             stop.set()
@@ -303,8 +294,7 @@ def main() -> None:
               f"together {cpu['sim'] + cpu['unitree']:.0f}")
     finally:
         echo.kill()
-        for service in (adapter, sim, router):
-            service.stop()
+        procs.stop_all()
 
 
 if __name__ == "__main__":

@@ -15,15 +15,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import tempfile
 import time
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "tests"))
+from harness import Processes, free_port, test_scaffolding
 
-from browser import Browser  # noqa: E402
-from support import Service, free_port  # noqa: E402
+Browser = test_scaffolding("browser").Browser
 
 JOINTS = ["left_elbow_joint", "right_knee_joint", "left_shoulder_pitch_joint", "right_elbow_joint",
           "left_knee_joint", "waist_yaw_joint"]
@@ -34,16 +30,16 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=10.0, help="length of each phase, s")
     parser.add_argument("--joints", type=int, default=3, help="joints plotted (1-6)")
     args = parser.parse_args()
-    logs = Path(tempfile.mkdtemp(prefix="viz-plots-bench-"))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     env = dict(os.environ, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1", ZENSIM_ROBOT_ID="plotbench",
                ZENSIM_LOG_LEVEL="WARNING")
-    router = Service("router", [], dict(env, ZENSIM_ZENOH_LISTEN=endpoint), logs)
-    client_env = dict(env, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint)
+    procs = Processes(dict(env, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint), prefix="viz-plots-bench-")
     port = free_port()
-    services = [Service("sim", ["--mode", "fixed"], client_env, logs), Service("bridge", [], client_env, logs),
-                Service("viz", ["--port", str(port)], client_env, logs)]
     try:
+        procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
+        procs.zensim("sim", "--mode", "fixed")
+        procs.zensim("bridge")
+        procs.zensim("viz", "--port", str(port))
         with Browser(1280, 800) as browser:
             browser.wait("true", 5)
             time.sleep(3)  # the services find each other
@@ -71,14 +67,12 @@ def main() -> int:
             time.sleep(1.0)
             hidden_after = frames_per_s()
     finally:
-        for service in services:
-            service.stop()
-        router.stop()
+        procs.stop_all()
     print(f"3D frames drawn per second (headless chromium, software WebGL), {args.seconds:.0f} s each:")
     print(f"  plots hidden {hidden_before:.1f} | plots shown ({len(chosen)} joints) {shown:.1f} "
           f"(plotly redraws {redraws:.1f}/s) | hidden again {hidden_after:.1f}")
     print(f"  one plotly redraw: {redraw_ms:.1f} ms of the page's main thread, {redraw_ms * redraws / 10:.1f} % of it")
-    print(f"logs: {logs}")
+    print(f"logs: {procs.dir}")
     return 0
 
 

@@ -26,35 +26,16 @@ import json
 import os
 import statistics
 import sys
-import tempfile
 import threading
 import time
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "tests"))
+import zenoh
+from tornado.websocket import websocket_connect
 
-import zenoh  # noqa: E402
-from tornado.websocket import websocket_connect  # noqa: E402
+from harness import Processes, cpu_s, free_port, plain_client, rss_mb, test_scaffolding, wait_for
+from zensim.schemas import Codec, JointState, JointTargets, Keys
 
-from browser import Browser  # noqa: E402
-from support import Service, free_port, plain_client, wait_for  # noqa: E402
-from zensim.schemas import Codec, JointState, JointTargets, Keys  # noqa: E402
-
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-
-
-def cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
-
-
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return 0.0
-
+Browser = test_scaffolding("browser").Browser
 
 class AckingClient:
     """A websocket client that acks every frame after `ack_delay_s`: 0 is the most a browser could take."""
@@ -118,40 +99,39 @@ def main() -> int:
     parser.add_argument("--soak-minutes", type=float, default=0.0, help="minutes of streaming for the memory soak")
     args = parser.parse_args()
 
-    log_dir = Path(tempfile.mkdtemp(prefix="zensim-bench-"))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     robot_id = f"bench{os.getpid()}"
     keys = Keys(robot_id)
     base_env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
     env = dict(base_env, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint)
     port = free_port()
-    services = [Service("router", [], dict(base_env, ZENSIM_ZENOH_LISTEN=endpoint), log_dir)]
+    procs = Processes(env)
     results: dict[str, object] = {}
     try:
-        wait_for(lambda: "router up" in services[0].log(), 15, "router")
-        services.append(Service("sim", ["--mode", "fixed"], env, log_dir))
-        services.append(Service("bridge", [], env, log_dir))
-        viz = Service("viz", ["--port", str(port), "--rate-hz", str(args.rate_hz)], env, log_dir)
-        services.append(viz)
+        router = procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
+        wait_for(lambda: "router up" in router.log(), 15, "router")
+        procs.zensim("sim", "--mode", "fixed")
+        procs.zensim("bridge")
+        viz = procs.zensim("viz", "--port", str(port), "--rate-hz", str(args.rate_hz))
         wait_for(lambda: "viz up" in viz.log() and "description of" in viz.log(), 30, "viz with a description")
         with plain_client(endpoint) as session, Browser() as browser:
             browser.goto(f"http://127.0.0.1:{port}/")
             browser.wait("window.zensim && zensim.sceneReady", 60, "the robot drawn")
-            rss0 = rss_mb(viz.proc.pid)
+            rss0 = rss_mb(viz.pid)
 
             # 1. chromium alone
-            f0, c0, t0 = browser.eval("zensim.framesApplied"), cpu_s(viz.proc.pid), time.monotonic()
+            f0, c0, t0 = browser.eval("zensim.framesApplied"), cpu_s(viz.pid), time.monotonic()
             time.sleep(args.seconds)
-            f1, c1, t1 = browser.eval("zensim.framesApplied"), cpu_s(viz.proc.pid), time.monotonic()
+            f1, c1, t1 = browser.eval("zensim.framesApplied"), cpu_s(viz.pid), time.monotonic()
             results["chromium_frames_per_s"] = round((f1 - f0) / (t1 - t0), 1)
             results["viz_cpu_pct_chromium_only"] = round(100 * (c1 - c0) / (t1 - t0), 1)
 
             # 2. a fast client beside chromium
             fast = AckingClient(f"ws://127.0.0.1:{port}/ws")
             wait_for(lambda: fast.frames > 0, 10, "frames at the fast client")
-            n0, f0, c0, t0 = fast.frames, browser.eval("zensim.framesApplied"), cpu_s(viz.proc.pid), time.monotonic()
+            n0, f0, c0, t0 = fast.frames, browser.eval("zensim.framesApplied"), cpu_s(viz.pid), time.monotonic()
             time.sleep(args.seconds)
-            n1, f1, c1, t1 = fast.frames, browser.eval("zensim.framesApplied"), cpu_s(viz.proc.pid), time.monotonic()
+            n1, f1, c1, t1 = fast.frames, browser.eval("zensim.framesApplied"), cpu_s(viz.pid), time.monotonic()
             results["fast_client_frames_per_s"] = round((n1 - n0) / (t1 - t0), 1)
             results["chromium_frames_per_s_meanwhile"] = round((f1 - f0) / (t1 - t0), 1)
             results["viz_cpu_pct_at_rate"] = round(100 * (c1 - c0) / (t1 - t0), 1)
@@ -204,12 +184,11 @@ def main() -> int:
 
             results["slider_to_cmd_joints"] = summary(to_cmd)
             results["slider_to_sim_motion"] = summary(to_move)
-            results["viz_rss_mb_before_after"] = [round(rss0, 1), round(rss_mb(viz.proc.pid), 1)]
+            results["viz_rss_mb_before_after"] = [round(rss0, 1), round(rss_mb(viz.pid), 1)]
             if args.soak_minutes > 0:
-                results["soak"] = soak(port, viz.proc.pid, args.soak_minutes)
+                results["soak"] = soak(port, viz.pid, args.soak_minutes)
     finally:
-        for service in reversed(services):
-            service.stop()
+        procs.stop_all()
     print(json.dumps(results, indent=2))
     return 0
 
