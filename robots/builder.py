@@ -15,7 +15,6 @@ from __future__ import annotations
 import fnmatch
 import logging
 import math
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
@@ -26,13 +25,15 @@ import numpy as np
 from zensim.robots import RobotFiles
 from zensim.schemas.messages import Mode
 from zensim.robots.control import DEFAULT_ARMATURE_KG_M2, ControlConfig, ModeConfig, first_match, load_control
-from zensim.robots.mesh_files import mesh_refusal
+from zensim.robots.description import Description, Joint, RobotModelError, parse_urdf
+from zensim.robots.mesh_files import resolve_mesh
+
+__all__ = ["MODES", "Robot", "RobotModelError", "build", "mjcf_xml", "place_base"]
 
 logger = logging.getLogger(__name__)
 
 MODES: Final[tuple[Mode, ...]] = ("floating", "fixed")
 
-ACTUATED_TYPES: Final = frozenset({"revolute", "continuous", "prismatic"})
 FREE_JOINT_NAME: Final = "floating_base"
 FLOOR_NAME: Final = "floor"
 SPAWN_CLEARANCE_M: Final = 0.002
@@ -67,33 +68,6 @@ _SENSORS: Final = {
     "base_linvel": (mujoco.mjtSensor.mjSENS_FRAMELINVEL, mujoco.mjtObj.mjOBJ_XBODY, "base", 3),
     "base_angvel": (mujoco.mjtSensor.mjSENS_FRAMEANGVEL, mujoco.mjtObj.mjOBJ_XBODY, "base", 3),
 }
-
-
-class RobotModelError(ValueError):
-    """A URDF or control file that cannot be turned into a model; the message names what is wrong."""
-
-
-@dataclass(frozen=True)
-class UrdfJoint:
-    """An actuated joint as the URDF states it (limits in SI units; inf where the URDF gives none)."""
-
-    name: str
-    type: str
-    lower: float
-    upper: float
-    effort: float
-    velocity: float
-
-
-@dataclass(frozen=True)
-class UrdfInfo:
-    """The parts of a URDF the builder needs beyond what MuJoCo's importer keeps."""
-
-    name: str
-    root_link: str
-    links: tuple[str, ...]
-    joints: tuple[UrdfJoint, ...]
-    mesh_filenames: tuple[str, ...]
 
 
 @dataclass
@@ -138,102 +112,20 @@ class Robot:
         return len(self.joint_names)
 
 
-# --------------------------------------------------------------------------------------------- URDF
-def _float(text: str | None, default: float) -> float:
-    return default if text is None or text.strip() == "" else float(text)
-
-
-def parse_urdf(text: str) -> UrdfInfo:
-    """Read joint order, limits and mesh names from URDF text (the document order is canonical).
-
-    Raises:
-        RobotModelError: Not a URDF, or it has no single root link.
-    """
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as exc:
-        raise RobotModelError(f"URDF is not valid XML: {exc}") from exc
-    if root.tag != "robot":
-        raise RobotModelError(f"not a URDF: root element is <{root.tag}>, expected <robot>")
-    links = tuple(link.get("name", "") for link in root.findall("link"))
-    children = {j.find("child").get("link") for j in root.findall("joint") if j.find("child") is not None}
-    roots = [name for name in links if name not in children]
-    if len(roots) != 1:
-        raise RobotModelError(f"URDF must have exactly one root link, found {roots}")
-    joints = []
-    for j in root.findall("joint"):
-        jtype = j.get("type", "")
-        if jtype not in ACTUATED_TYPES:
-            continue
-        limit = j.find("limit")
-        get = (lambda key: limit.get(key)) if limit is not None else (lambda key: None)
-        unbounded = jtype == "continuous"
-        effort = _float(get("effort"), 0.0)
-        velocity = _float(get("velocity"), 0.0)
-        joints.append(UrdfJoint(
-            name=j.get("name", ""),
-            type=jtype,
-            lower=-math.inf if unbounded else _float(get("lower"), -math.inf),
-            upper=math.inf if unbounded else _float(get("upper"), math.inf),
-            # URDF uses 0 (or nothing) for "no limit" in practice.
-            effort=effort if effort > 0 else math.inf,
-            velocity=velocity if velocity > 0 else math.inf,
-        ))
-    meshes = tuple(dict.fromkeys(m.get("filename", "") for m in root.iter("mesh")))
-    return UrdfInfo(name=root.get("name", "robot"), root_link=roots[0], links=links, joints=tuple(joints),
-                    mesh_filenames=meshes)
-
-
-def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
-    """Find a URDF mesh file relative to the URDF's own folder (never the working directory).
-
-    Handles plain relative paths, `package://<pkg>/...` (the URDF's folder is taken as the package
-    root, as in a g1_description checkout) and `file://`. The sim serves what this returns to any
-    client, so the file must be a mesh type (`mesh_files.MESH_SUFFIXES`) inside the description's own folder tree
-    (`mesh_files.mesh_roots`), symlinks followed: `../../etc/passwd`, `file:///etc/hostname` or a link out of the
-    folder fail here, at load.
-
-    Raises:
-        FileNotFoundError: No candidate exists; the message lists where it looked.
-        RobotModelError: The file is outside the description's folders or not a mesh type.
-    """
-    candidates: list[Path] = []
-    if filename.startswith("package://"):
-        rest = filename[len("package://"):]
-        inner = rest.split("/", 1)[1] if "/" in rest else rest
-        candidates += [urdf_dir / inner, urdf_dir.parent / rest]
-    elif filename.startswith("file://"):
-        candidates.append(Path(filename[len("file://"):]))
-    else:
-        candidates.append(urdf_dir / filename)
-    candidates += [urdf_dir / "meshes" / Path(filename).name, urdf_dir / Path(filename).name]
-    for candidate in candidates:
-        if candidate.is_file():
-            return _bounded_mesh(filename, candidate.resolve(), urdf_dir)
-    raise FileNotFoundError(f"mesh {filename!r} not found; looked at {[str(c) for c in candidates]}")
-
-
-def _bounded_mesh(filename: str, path: Path, urdf_dir: Path) -> Path:
-    refusal = mesh_refusal(filename, path, urdf_dir)
-    if refusal is not None:
-        raise RobotModelError(refusal)
-    return path
-
-
 # ------------------------------------------------------------------------------------- resolution
 def _default_gains(effort: float) -> tuple[float, float]:
     kp = DEFAULT_KP_PER_EFFORT * effort if math.isfinite(effort) else DEFAULT_KP_NO_EFFORT
     return kp, DEFAULT_KD_RATIO * kp
 
 
-def resolve_gains(mode_cfg: ModeConfig, joints: tuple[UrdfJoint, ...]) -> tuple[np.ndarray, np.ndarray]:
+def resolve_gains(mode_cfg: ModeConfig, joints: tuple[Joint, ...]) -> tuple[np.ndarray, np.ndarray]:
     """kp, kd per joint for one mode: first matching group, else derived from the effort limit."""
     groups = [(g.joints, (g.kp, g.kd)) for g in mode_cfg.gains]
     pairs = [first_match(j.name, groups) or _default_gains(j.effort) for j in joints]
     return np.array([p[0] for p in pairs], float), np.array([p[1] for p in pairs], float)
 
 
-def resolve_pose(control: ControlConfig, joints: tuple[UrdfJoint, ...]) -> np.ndarray:
+def resolve_pose(control: ControlConfig, joints: tuple[Joint, ...]) -> np.ndarray:
     """Default joint positions, clipped into the joint limits (a zero pose may lie outside them)."""
     groups = [([pattern], value) for pattern, value in control.pose.items()]
     q = np.array([0.0 if (value := first_match(j.name, groups)) is None else float(value) for j in joints])
@@ -246,7 +138,7 @@ def resolve_pose(control: ControlConfig, joints: tuple[UrdfJoint, ...]) -> np.nd
     return clipped
 
 
-def resolve_armature(control: ControlConfig, joints: tuple[UrdfJoint, ...]) -> np.ndarray:
+def resolve_armature(control: ControlConfig, joints: tuple[Joint, ...]) -> np.ndarray:
     """Armature per joint, kg m^2: first matching group, else DEFAULT_ARMATURE_KG_M2.
 
     An explicit 0.0 is a value, not "unset": `first_match(...) or default` turned it into the default.
@@ -260,7 +152,9 @@ def resolve_armature(control: ControlConfig, joints: tuple[UrdfJoint, ...]) -> n
 @dataclass
 class _Prepared:
     spec: mujoco.MjSpec
-    info: UrdfInfo
+    info: Description
+    joints: tuple[Joint, ...]
+    """The actuated joints, canonical order."""
     control: ControlConfig
     text: str
     mesh_files: dict[str, Path]
@@ -299,7 +193,8 @@ def _prepare(files: RobotFiles, mode: Mode) -> _Prepared:
     control = load_control(files.control)
     text = files.urdf.read_text()
     info = parse_urdf(text)
-    if not info.joints:
+    joints = info.actuated_joints
+    if not joints:
         raise RobotModelError(f"{files.urdf}: no actuated (revolute/continuous/prismatic) joints")
     urdf_dir = files.urdf.parent
     mesh_files = {name: resolve_mesh(name, urdf_dir) for name in info.mesh_filenames}
@@ -336,10 +231,10 @@ def _prepare(files: RobotFiles, mode: Mode) -> _Prepared:
     if mode == "floating":
         base.add_freejoint(name=FREE_JOINT_NAME)
 
-    kp, kd = resolve_gains(mode_cfg, info.joints)
-    default_q = resolve_pose(control, info.joints)
-    armature = resolve_armature(control, info.joints)
-    for j, arm, kp_j, kd_j in zip(info.joints, armature, kp, kd):
+    kp, kd = resolve_gains(mode_cfg, joints)
+    default_q = resolve_pose(control, joints)
+    armature = resolve_armature(control, joints)
+    for j, arm, kp_j, kd_j in zip(joints, armature, kp, kd):
         spec.joint(j.name).armature = float(arm)
         act = spec.add_actuator(name=j.name, target=j.name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
@@ -367,7 +262,7 @@ def _prepare(files: RobotFiles, mode: Mode) -> _Prepared:
     for name, (stype, otype, which, _dim) in _SENSORS.items():
         spec.add_sensor(name=name, type=stype, objtype=otype,
                         objname=model_cfg.imu_site if which == "imu" else base_link)
-    return _Prepared(spec, info, control, text, mesh_files, base_link, imu_link, kp, kd, default_q, armature)
+    return _Prepared(spec, info, joints, control, text, mesh_files, base_link, imu_link, kp, kd, default_q, armature)
 
 
 def _compile(prepared: _Prepared, files: RobotFiles) -> mujoco.MjModel:
@@ -409,8 +304,8 @@ def build(files: RobotFiles, mode: Mode) -> Robot:
     """
     prepared = _prepare(files, mode)
     model = _compile(prepared, files)
-    info, cfg = prepared.info, prepared.control
-    names = tuple(j.name for j in info.joints)
+    info, joints, cfg = prepared.info, prepared.joints, prepared.control
+    names = tuple(j.name for j in joints)
     jids = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names])
     base_body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, prepared.base_link)
     free_jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, FREE_JOINT_NAME)
@@ -425,10 +320,10 @@ def build(files: RobotFiles, mode: Mode) -> Robot:
         mode=mode,
         name=info.name,
         joint_names=names,
-        q_min=np.array([j.lower for j in info.joints]),
-        q_max=np.array([j.upper for j in info.joints]),
-        effort_limit=np.array([j.effort for j in info.joints]),
-        velocity_limit=np.array([j.velocity for j in info.joints]),
+        q_min=np.array([j.lower for j in joints]),
+        q_max=np.array([j.upper for j in joints]),
+        effort_limit=np.array([j.effort for j in joints]),
+        velocity_limit=np.array([j.velocity for j in joints]),
         default_q=prepared.default_q,
         kp=prepared.kp,
         kd=prepared.kd,

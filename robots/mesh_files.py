@@ -1,14 +1,17 @@
-"""Which mesh files a robot description may name: mesh types inside its own folder tree.
+"""Where a robot description's mesh files are, and which it may name: mesh types inside its own folder tree.
 
 Whatever a URDF names is served to any client (the sim's `info/mesh/...`, the viz's browsers), so a
 description must not reach `/etc/passwd`, `file:///etc/hostname` or a symlink out of its folder.
-No mujoco import: the viz checks its local meshes with this too.
+The one resolver for mesh filenames: the builder and the viz (for a local --urdf) both use it.
+No mujoco import here.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Final
+
+from zensim.robots.description import RobotModelError
 
 MESH_SUFFIXES: Final = frozenset({".stl", ".obj", ".dae", ".ply", ".msh", ".glb", ".gltf"})
 """File types a URDF mesh may have."""
@@ -38,3 +41,33 @@ def mesh_refusal(filename: str, path: Path, urdf_dir: Path) -> str | None:
     if resolved.suffix.lower() not in MESH_SUFFIXES:
         return f"mesh {filename!r} ({resolved}) is not a mesh file type ({', '.join(sorted(MESH_SUFFIXES))})"
     return None
+
+
+def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
+    """Find a URDF mesh file relative to the URDF's own folder (never the working directory).
+
+    Handles plain relative paths, `package://<pkg>/...` (the URDF's folder is taken as the package
+    root, as in a g1_description checkout, or its parent as a ROS workspace) and `file://`, then
+    `meshes/<name>` and `<name>` beside the URDF. The file found must pass `mesh_refusal`.
+
+    Raises:
+        FileNotFoundError: No candidate exists; the message lists where it looked.
+        RobotModelError: The file is outside the description's folders or not a mesh type.
+    """
+    candidates: list[Path] = []
+    if filename.startswith("package://"):
+        rest = filename[len("package://"):]
+        inner = rest.split("/", 1)[1] if "/" in rest else rest
+        candidates += [urdf_dir / inner, urdf_dir.parent / rest]
+    elif filename.startswith("file://"):
+        candidates.append(Path(filename[len("file://"):]))
+    else:
+        candidates.append(urdf_dir / filename)
+    candidates += [urdf_dir / "meshes" / Path(filename).name, urdf_dir / Path(filename).name]
+    for candidate in candidates:
+        if candidate.is_file():
+            refusal = mesh_refusal(filename, candidate, urdf_dir)
+            if refusal is not None:
+                raise RobotModelError(refusal)
+            return candidate.resolve()
+    raise FileNotFoundError(f"mesh {filename!r} not found; looked at {[str(c) for c in candidates]}")

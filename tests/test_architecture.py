@@ -91,3 +91,24 @@ def test_the_rule_sees_every_service() -> None:
     services = {p for p in packages if p not in LIBRARIES and p != "zensim" and owner(p, packages) == p}
     assert {"zensim.sim", "zensim.bridge", "zensim.viz"} <= services
     assert len(package_files()) > 20
+
+
+URDF_READERS = {"yourdfpy", "lxml", "xml.etree", "xml.etree.ElementTree", "xml.dom", "xml.sax", "defusedxml"}
+"""Modules that can parse a URDF."""
+
+
+def third_party_imports(path: Path) -> set[str]:
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            found.add(node.module)
+    return found
+
+
+def test_the_urdf_is_read_in_one_module() -> None:
+    """robots/description.py is the URDF reader; derive.py (a developer tool) only copies XML elements."""
+    readers = {path.relative_to(REPO).as_posix() for folder in ("services", "schemas", "robots", "zensim")
+               for path in (REPO / folder).rglob("*.py") if third_party_imports(path) & URDF_READERS}
+    assert readers == {"robots/description.py", "robots/unitree_g1/derive.py"}

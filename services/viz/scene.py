@@ -1,5 +1,6 @@
 """A URDF as meshcat geometry, and its forward kinematics: pure logic, no zenoh, no web server.
 
+The description comes parsed from `zensim.robots.description` (the one URDF reader).
 The viewer draws one meshcat node per link (`/<root>/<link>`) with the
 link's visuals as fixed children. Only the link transforms change with the
 pose, so a pose update is one flat float32 array (`Frame`) that the page
@@ -17,103 +18,28 @@ from __future__ import annotations
 
 import logging
 import math
-import posixpath
-import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import meshcat.commands as mc
 import meshcat.geometry as mg
 import numpy as np
 import umsgpack
 
+from zensim.robots.description import Description, Joint, RobotModelError, Visual
+
 logger = logging.getLogger(__name__)
 
-MOVABLE = ("revolute", "continuous", "prismatic")
-DEFAULT_RGBA = (0.7, 0.7, 0.7, 1.0)
 
 
-class UrdfError(ValueError):
-    """A URDF the viewer cannot draw; the message names the element."""
+def movable_joints(robot: Description) -> list[Joint]:
+    """The joints a slider moves: actuated and not mimicking another (document order)."""
+    return [j for j in robot.actuated_joints if j.mimic is None]
 
 
-@dataclass(frozen=True)
-class Visual:
-    """One `<visual>` of a link."""
-
-    kind: str
-    """box, cylinder, sphere or mesh."""
-    T_link_visual: np.ndarray
-    """The visual's origin in its link frame (4x4)."""
-    rgba: tuple[float, float, float, float]
-    """Colour from the URDF material (inline or by name)."""
-    size: tuple[float, ...] = ()
-    """box: (x, y, z); cylinder: (radius, length); sphere: (radius,)."""
-    filename: str = ""
-    """Mesh file as the URDF names it."""
-    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    """Mesh scale."""
-
-
-@dataclass(frozen=True)
-class Joint:
-    name: str
-    type: str
-    parent: str
-    child: str
-    T_parent_joint: np.ndarray
-    axis: np.ndarray
-    lower: float
-    upper: float
-    mimic: tuple[str, float, float] | None = None
-    """(joint, multiplier, offset) for a mimic joint."""
-
-
-@dataclass
-class RobotDescription:
-    """The parts of a URDF the viewer needs."""
-
-    name: str
-    root: str
-    links: list[str]
-    joints: list[Joint]
-    """Every joint, parents before children."""
-    visuals: dict[str, list[Visual]] = field(default_factory=dict)
-
-    @property
-    def movable_joints(self) -> list[Joint]:
-        return [j for j in self.joints if j.type in MOVABLE and j.mimic is None]
-
-    def mesh_filenames(self) -> list[str]:
-        return sorted({v.filename for vs in self.visuals.values() for v in vs if v.kind == "mesh"})
-
-
-def _floats(text: str | None, n: int, default: tuple[float, ...]) -> tuple[float, ...]:
-    if text is None:
-        return default
-    values = tuple(float(x) for x in text.split())
-    if len(values) != n:
-        raise UrdfError(f"expected {n} numbers, got {text!r}")
-    return values
-
-
-def rpy_matrix(rpy: Sequence[float]) -> np.ndarray:
-    """URDF fixed-axis roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
-
-
-def _origin(element: ET.Element | None) -> np.ndarray:
-    T = np.eye(4)
-    if element is not None:
-        T[:3, :3] = rpy_matrix(_floats(element.get("rpy"), 3, (0.0, 0.0, 0.0)))
-        T[:3, 3] = _floats(element.get("xyz"), 3, (0.0, 0.0, 0.0))
-    return T
+def visual_mesh_filenames(robot: Description) -> list[str]:
+    """The mesh files the drawing needs (collision meshes are not drawn)."""
+    return sorted({v.filename for vs in robot.visuals.values() for v in vs if v.kind == "mesh"})
 
 
 def quat_matrix(wxyz: Sequence[float]) -> np.ndarray:
@@ -126,106 +52,6 @@ def quat_matrix(wxyz: Sequence[float]) -> np.ndarray:
         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
     ])
-
-
-def parse_urdf(text: str) -> RobotDescription:
-    """Parse URDF text.
-
-    Raises:
-        UrdfError: not XML, no links, or a joint that names a missing link.
-    """
-    try:
-        robot = ET.fromstring(text)
-    except ET.ParseError as exc:
-        raise UrdfError(f"URDF is not valid XML: {exc}") from None
-    if robot.tag != "robot":
-        raise UrdfError(f"root element is <{robot.tag}>, expected <robot>")
-    materials: dict[str, tuple[float, float, float, float]] = {}
-    for mat in robot.findall("material"):
-        color = mat.find("color")
-        if color is not None and mat.get("name"):
-            materials[mat.get("name", "")] = _floats(color.get("rgba"), 4, DEFAULT_RGBA)  # type: ignore[assignment]
-
-    links = [link.get("name", "") for link in robot.findall("link")]
-    if not links:
-        raise UrdfError("URDF has no <link>")
-    visuals: dict[str, list[Visual]] = {}
-    for link in robot.findall("link"):
-        name = link.get("name", "")
-        for vis in link.findall("visual"):
-            visual = _visual(vis, materials, name)
-            if visual is not None:
-                visuals.setdefault(name, []).append(visual)
-
-    raw_joints = []
-    for j in robot.findall("joint"):
-        parent, child = j.find("parent"), j.find("child")
-        if parent is None or child is None:
-            raise UrdfError(f"joint {j.get('name')!r} lacks <parent> or <child>")
-        limit = j.find("limit")
-        jtype = j.get("type", "fixed")
-        lower = float(limit.get("lower", "0")) if limit is not None else 0.0
-        upper = float(limit.get("upper", "0")) if limit is not None else 0.0
-        if jtype == "continuous":
-            lower, upper = -math.pi, math.pi
-        axis = np.array(_floats(j.find("axis").get("xyz") if j.find("axis") is not None else None, 3, (1.0, 0.0, 0.0)))
-        norm = np.linalg.norm(axis)
-        mimic_el = j.find("mimic")
-        mimic = None
-        if mimic_el is not None:
-            mimic = (mimic_el.get("joint", ""), float(mimic_el.get("multiplier", "1")), float(mimic_el.get("offset", "0")))
-        raw_joints.append(Joint(
-            name=j.get("name", ""), type=jtype, parent=parent.get("link", ""), child=child.get("link", ""),
-            T_parent_joint=_origin(j.find("origin")), axis=axis / norm if norm > 0 else axis,
-            lower=lower, upper=upper, mimic=mimic,
-        ))
-    known = set(links)
-    for j in raw_joints:
-        if j.parent not in known or j.child not in known:
-            raise UrdfError(f"joint {j.name!r} names a link that does not exist")
-    children = {j.child for j in raw_joints}
-    roots = [link for link in links if link not in children]
-    if len(roots) != 1:
-        raise UrdfError(f"URDF must have one root link, found {roots}")
-    # Order joints parents-first so forward kinematics is one pass.
-    by_parent: dict[str, list[Joint]] = {}
-    for j in raw_joints:
-        by_parent.setdefault(j.parent, []).append(j)
-    ordered: list[Joint] = []
-    stack = [roots[0]]
-    while stack:
-        link = stack.pop()
-        for j in by_parent.get(link, []):
-            ordered.append(j)
-            stack.append(j.child)
-    return RobotDescription(name=robot.get("name", "robot"), root=roots[0], links=links, joints=ordered, visuals=visuals)
-
-
-def _visual(vis: ET.Element, materials: Mapping[str, tuple[float, ...]], link: str) -> Visual | None:
-    geom = vis.find("geometry")
-    if geom is None or len(geom) == 0:
-        return None
-    shape = geom[0]
-    rgba = DEFAULT_RGBA
-    mat = vis.find("material")
-    if mat is not None:
-        color = mat.find("color")
-        if color is not None:
-            rgba = _floats(color.get("rgba"), 4, DEFAULT_RGBA)  # type: ignore[assignment]
-        elif mat.get("name") in materials:
-            rgba = materials[mat.get("name", "")]  # type: ignore[assignment]
-    T = _origin(vis.find("origin"))
-    if shape.tag == "box":
-        return Visual("box", T, rgba, size=_floats(shape.get("size"), 3, (0.1, 0.1, 0.1)))
-    if shape.tag == "cylinder":
-        return Visual("cylinder", T, rgba, size=(float(shape.get("radius", "0.05")), float(shape.get("length", "0.1"))))
-    if shape.tag == "sphere":
-        return Visual("sphere", T, rgba, size=(float(shape.get("radius", "0.05")),))
-    if shape.tag == "mesh":
-        return Visual("mesh", T, rgba, filename=shape.get("filename", ""),
-                      scale=_floats(shape.get("scale"), 3, (1.0, 1.0, 1.0)))  # type: ignore[arg-type]
-    logger.warning("link %s: unsupported visual <%s> skipped", link, shape.tag)
-    return None
 
 
 def match_mesh(filename: str, available: Sequence[str]) -> str | None:
@@ -247,23 +73,6 @@ def match_mesh(filename: str, available: Sequence[str]) -> str | None:
         if n > best_len:
             best, best_len = path, n
     return best
-
-
-def local_mesh_path(urdf_dir: str, filename: str) -> str:
-    """A mesh filename resolved on disk, relative to the URDF's own folder (never the working directory).
-
-    `package://pkg/a/b.stl` is tried as `a/b.stl` under the URDF folder and its parent.
-    """
-    if filename.startswith("file://"):
-        filename = filename[len("file://"):]
-    if filename.startswith("package://"):
-        rest = filename[len("package://"):].split("/", 1)[-1]
-        for base in (urdf_dir, posixpath.dirname(urdf_dir)):
-            candidate = posixpath.join(base, rest)
-            if posixpath.exists(candidate):
-                return candidate
-        return posixpath.join(urdf_dir, rest)
-    return filename if posixpath.isabs(filename) else posixpath.join(urdf_dir, filename)
 
 
 def _hex(rgba: Sequence[float]) -> int:
@@ -296,7 +105,7 @@ class Style:
 
 
 def scene_commands(
-    robot: RobotDescription, root: str, meshes: Mapping[str, bytes], style: Style
+    robot: Description, root: str, meshes: Mapping[str, bytes], style: Style
 ) -> list[dict]:
     """The meshcat commands (lowered dicts) that draw `robot` under the path `/root`.
 
@@ -317,7 +126,7 @@ def scene_commands(
                 continue
             path = _path(root, link, f"v{i}")
             commands.append(mc.SetObject(geometry, style.material(vis.rgba), path).lower())
-            T = vis.T_link_visual
+            T = vis.origin
             if vis.kind == "cylinder":
                 T = T @ _CYLINDER_Z
             elif vis.kind == "mesh":
@@ -360,13 +169,14 @@ def pack_command(command: dict) -> bytes:
 class Kinematics:
     """Forward kinematics of a RobotDescription for a joint vector in a given order."""
 
-    def __init__(self, robot: RobotDescription, joint_order: Sequence[str]) -> None:
+    def __init__(self, robot: Description, joint_order: Sequence[str]) -> None:
         self.robot = robot
-        self.links = [robot.root] + [j.child for j in robot.joints]
+        joints = list(robot.joints_from_root())
+        self.links = [robot.root_link] + [j.child for j in joints]
         self.joint_order = list(joint_order)
         index = {name: i for i, name in enumerate(self.joint_order)}
         self._steps = []
-        for j in robot.joints:
+        for j in joints:
             source = j.mimic[0] if j.mimic else j.name
             mult, offset = (j.mimic[1], j.mimic[2]) if j.mimic else (1.0, 0.0)
             self._steps.append((j, index.get(source, -1), mult, offset))
@@ -378,10 +188,10 @@ class Kinematics:
         """
         out = np.empty((len(self.links), 4, 4))
         out[0] = T_world_base
-        frames = {self.robot.root: T_world_base}
+        frames = {self.robot.root_link: T_world_base}
         for k, (j, idx, mult, offset) in enumerate(self._steps, start=1):
-            T = frames[j.parent] @ j.T_parent_joint
-            if j.type in MOVABLE:
+            T = frames[j.parent] @ j.origin
+            if j.actuated:
                 value = (q[idx] if q is not None and 0 <= idx < len(q) else 0.0) * mult + offset
                 M = np.eye(4)
                 if j.type == "prismatic":
@@ -436,7 +246,7 @@ ROOTS_WITH_GHOST = ("robot", "ghost")
 class Drawing:
     """One robot ready to draw: its meshcat commands, kinematics and what the panel shows."""
 
-    robot: RobotDescription
+    robot: Description
     kin: Kinematics
     joint_names: tuple[str, ...]
     lower: tuple[float, ...]
@@ -449,7 +259,7 @@ class Drawing:
 
 
 def build_drawing(
-    urdf_text: str,
+    robot: Description,
     meshes: Mapping[str, bytes],
     joint_names: Sequence[str] | None = None,
     q_min: Sequence[float] | None = None,
@@ -460,25 +270,30 @@ def build_drawing(
     """Everything the viewer needs from a description.
 
     Args:
-        urdf_text: the URDF.
+        robot: the parsed URDF.
         meshes: mesh bytes by URDF filename.
         joint_names: the canonical joint order of JointState (RobotInfo.joint_names);
             None: the URDF's movable joints in file order.
-        q_min: lower limits in `joint_names` order (RobotInfo); None: from the URDF.
+        q_min: lower limits in `joint_names` order (RobotInfo); None: from the URDF (a joint
+            without position limits, e.g. continuous, gets a slider over one turn).
         q_max: upper limits likewise.
         ghost: also draw the translucent commanded pose.
         source: where the description came from, shown on the page.
 
     Raises:
-        UrdfError: the URDF cannot be drawn, or the limits do not match the joints.
+        RobotModelError: the limits do not match the joints.
     """
-    robot = parse_urdf(urdf_text)
     by_name = {j.name: j for j in robot.joints}
-    names = tuple(joint_names) if joint_names is not None else tuple(j.name for j in robot.movable_joints)
-    lower = tuple(q_min) if q_min is not None else tuple(by_name[n].lower if n in by_name else -math.pi for n in names)
-    upper = tuple(q_max) if q_max is not None else tuple(by_name[n].upper if n in by_name else math.pi for n in names)
+    names = tuple(joint_names) if joint_names is not None else tuple(j.name for j in movable_joints(robot))
+
+    def urdf_limit(name: str, side: str, turn: float) -> float:
+        value = getattr(by_name[name], side) if name in by_name else turn
+        return value if math.isfinite(value) else turn
+
+    lower = tuple(q_min) if q_min is not None else tuple(urdf_limit(n, "lower", -math.pi) for n in names)
+    upper = tuple(q_max) if q_max is not None else tuple(urdf_limit(n, "upper", math.pi) for n in names)
     if not len(lower) == len(upper) == len(names):
-        raise UrdfError(f"{len(names)} joints but {len(lower)} lower and {len(upper)} upper limits")
+        raise RobotModelError(f"{len(names)} joints but {len(lower)} lower and {len(upper)} upper limits")
     missing = [n for n in names if n not in by_name]
     if missing:
         logger.warning("joints not in the URDF (not drawn): %s", ", ".join(missing))

@@ -37,7 +37,8 @@ import zenoh
 from zensim.common.logs import RateLimitedLog
 from zensim.common.session import StartupError
 from zensim.common.wire import TypedPublisher, decode_input, error_text
-from zensim.robots.mesh_files import mesh_refusal
+from zensim.robots.description import RobotModelError, load_description, parse_urdf
+from zensim.robots.mesh_files import resolve_mesh
 from zensim.schemas import topics
 from zensim.schemas import (
     Codec,
@@ -220,28 +221,25 @@ class VizService:
         meshes: dict[str, bytes] = {}
         if self.settings.urdf:
             urdf_path = Path(self.settings.urdf).expanduser().resolve()
-            urdf_text = urdf_path.read_text()
+            robot = load_description(urdf_path)
             source = str(urdf_path)
-            for filename in scene.parse_urdf(urdf_text).mesh_filenames():
-                path = Path(scene.local_mesh_path(str(urdf_path.parent), filename))
-                if not path.is_file():
-                    logger.warning("mesh %s not found at %s", filename, path)
-                elif (refusal := mesh_refusal(filename, path, urdf_path.parent)) is not None:
-                    logger.warning("not sent to browsers: %s", refusal)  # as the sim refuses it
-                else:
-                    meshes[filename] = path.read_bytes()
+            for filename in scene.visual_mesh_filenames(robot):
+                try:
+                    meshes[filename] = resolve_mesh(filename, urdf_path.parent).read_bytes()
+                except (OSError, RobotModelError) as exc:  # not drawn, as the sim would not serve it
+                    logger.warning("not sent to browsers: %s", exc)
         else:
             assert info is not None
-            urdf_text = self._get_bytes(self.keys.urdf).decode("utf-8")
+            robot = parse_urdf(self._get_bytes(self.keys.urdf))
             source = f"zenoh {self.keys.urdf}"
-            for filename in scene.parse_urdf(urdf_text).mesh_filenames():
+            for filename in scene.visual_mesh_filenames(robot):
                 served = scene.match_mesh(filename, info.mesh_paths)
                 if served is None:
                     logger.warning("mesh %s is not among RobotInfo.mesh_paths: not drawn", filename)
                     continue
                 meshes[filename] = self._get_bytes(self.keys.mesh(served))
         drawing = scene.build_drawing(
-            urdf_text, meshes,
+            robot, meshes,
             joint_names=info.joint_names if info else None,
             q_min=info.q_min if info else None, q_max=info.q_max if info else None,
             ghost=self.settings.ghost, source=source,
