@@ -24,9 +24,10 @@ import time
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
+from zensim.common.robot_info import fetch_robot
 from zensim.common.session import StartupError
 from zensim.common.pacing import Pacer
-from zensim.common.wire import TypedPublisher, decode_input, error_text, read_payload
+from zensim.common.wire import TypedPublisher, decode_input, read_payload
 from zensim.schemas import topics
 from zensim.schemas import (
     BridgeReport,
@@ -35,42 +36,15 @@ from zensim.schemas import (
     JointTargets,
     Keys,
     MotorCommand,
-    RobotInfo,
     bounded,
     decode_scalar,
 )
-from zensim.schemas.bounds import INFO_CAP_BYTES, SCALAR_CAP_BYTES, vector_cap_bytes
+from zensim.schemas.bounds import SCALAR_CAP_BYTES, vector_cap_bytes
 
 from .settings import BridgeSettings
 from .targets import HeldTargets, RobotModel, UnusableRobotInfo, Verdict
 
 logger = logging.getLogger("zensim.bridge")
-
-RETRY_PAUSE_S = 0.2
-"""Pause between info/robot queries that found no sim."""
-
-
-def fetch_model(session: zenoh.Session, keys: Keys, timeout_s: float, stop: threading.Event) -> RobotModel | None:
-    """Ask the sim's info/robot until it answers with a usable description.
-
-    Returns:
-        The robot, or None when `stop` was set first.
-    """
-    codec = Codec(RobotInfo)
-    waiting = RateLimitedLog(logger, 10.0)
-    while not stop.is_set():
-        for reply in session.get(keys.robot_info, timeout=timeout_s):
-            if reply.ok is None:
-                waiting.warning("info/robot answered an error: %s", error_text(reply.err))
-                continue
-            try:
-                return RobotModel.from_info(codec.decode(*read_payload(reply.ok, INFO_CAP_BYTES)))
-            except (DecodeError, UnusableRobotInfo) as exc:
-                waiting.warning("unusable RobotInfo on %s: %s", keys.robot_info, exc)
-        waiting.warning("no sim answers on %s yet; retrying", keys.robot_info)
-        stop.wait(RETRY_PAUSE_S)
-    return None
-
 
 class Bridge:
     """The running bridge: callbacks merge inputs into the held targets, `tick` publishes.
@@ -227,7 +201,7 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
         logger.info("robot from local files: %d joints", len(model.joint_names))
     else:
         logger.info("asking the sim on %s", keys.robot_info)
-        model = fetch_model(session, keys, settings.info_timeout_s, stop)
+        model = fetch_robot(session, keys, settings.info_timeout_s, stop, RobotModel.from_info, logger)
         if model is None:
             return 0
         logger.info("robot from the sim: %d joints, mode %s", len(model.joint_names), model.mode)
@@ -244,7 +218,7 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
     try:
         while not stop.is_set():
             if bridge.sim_restarted.is_set():
-                model = fetch_model(session, keys, settings.info_timeout_s, stop)
+                model = fetch_robot(session, keys, settings.info_timeout_s, stop, RobotModel.from_info, logger)
                 if model is None:
                     break
                 bridge.adopt(model)

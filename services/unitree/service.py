@@ -25,8 +25,9 @@ import time
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
+from zensim.common.robot_info import fetch_robot
 from zensim.common.wire import TypedPublisher, payload_of
-from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, RobotInfo, UnitreeStatus, topics
+from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, UnitreeStatus, bounded, topics
 
 from . import switcher
 from .codec import NUM_MOTORS, CodecError, decode_low_cmd
@@ -37,31 +38,8 @@ from .settings import UnitreeSettings
 
 logger = logging.getLogger("zensim.unitree")
 
-RETRY_PAUSE_S = 0.2
 DDS_WAIT_S = 0.1
 """Longest the DDS thread blocks before it looks at the stop flag."""
-MAX_ERROR_CHARS = 200
-
-
-def fetch_joint_names(session: zenoh.Session, keys: Keys, timeout_s: float, stop: threading.Event) -> tuple[str, ...] | None:
-    """Ask the sim's info/robot until it answers; the joint order is the motor order.
-
-    Returns:
-        The joint names, or None when `stop` was set first.
-    """
-    codec = Codec(RobotInfo)
-    waiting = RateLimitedLog(logger, 10.0)
-    while not stop.is_set():
-        for reply in session.get(keys.robot_info, timeout=timeout_s):
-            if reply.ok is None:
-                continue
-            try:
-                return codec.decode(*payload_of(reply.ok)).joint_names
-            except DecodeError as exc:
-                waiting.warning("unusable RobotInfo on %s: %s", keys.robot_info, exc)
-        waiting.warning("no sim answers on %s yet; retrying", keys.robot_info)
-        stop.wait(RETRY_PAUSE_S)
-    return None
 
 
 class Counters:
@@ -139,7 +117,7 @@ class UnitreeAdapter:
             else:
                 command = motor_command(low_cmd, self._joint_names)
         except (CodecError, LowCmdError) as exc:
-            error = str(exc)[:MAX_ERROR_CHARS]
+            error = bounded(str(exc))
         with self._lock:
             c = self.counters
             c.lowcmd_received += 1
@@ -172,7 +150,7 @@ class UnitreeAdapter:
             except Exception as exc:  # the binding raises assorted errors on an undecodable sample
                 # The sample is taken (gone) either way; the rest wait for the next wake-up, so a
                 # reader that keeps failing cannot spin this thread.
-                self._reject_log.warning("undecodable motion-switcher request: %s", str(exc)[:MAX_ERROR_CHARS])
+                self._reject_log.warning("undecodable motion-switcher request: %s", bounded(str(exc)))
                 return
             if request is None:
                 return
@@ -230,7 +208,7 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
     """
     keys = Keys(settings.robot_id)
     logger.info("asking the sim on %s", keys.robot_info)
-    joint_names = fetch_joint_names(session, keys, settings.info_timeout_s, stop)
+    joint_names = fetch_robot(session, keys, settings.info_timeout_s, stop, lambda info: info.joint_names, logger)
     if joint_names is None:
         return 0
     if len(joint_names) > NUM_MOTORS:
