@@ -402,6 +402,17 @@ class RobotInfo(Message, tag="robot_info", kw_only=True):
     """The episode (SimStatus.episode) this description was given in: a client that learns the robot
     here knows from the first SimStatus whether the sim reset meanwhile."""
 
+    def __post_init__(self) -> None:
+        n = len(self.joint_names)
+        _check_unique("joint_names", self.joint_names)
+        for field in ("q_min", "q_max", "effort_limit", "velocity_limit"):
+            _check_length(field, getattr(self, field), n, "joint_names")
+        vectors = [(f"default_q[{mode}]", q) for mode, q in self.default_q.items()]
+        vectors += [(f"gains[{mode}].{name}", getattr(g, name)) for mode, g in self.gains.items() for name in ("kp", "kd")]
+        for field, values in vectors:
+            _check_length(field, values, n, "joint_names")
+            _check_finite(field, values)
+
 
 # --- lockstep (clock = lockstep) ---------------------------------------------
 

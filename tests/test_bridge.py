@@ -42,17 +42,27 @@ class TestRobotModel:
         assert model.kp["fixed"].tolist() == [10.0, 10.0, 3.0]
         assert model.mode == "floating"
 
-    @pytest.mark.parametrize("change", [
-        {"q_min": (0.0, 0.0)},
-        {"default_q": {"floating": (0.0,)}},
-        {"gains": {"fixed": Gains(kp=(1.0,) * 3, kd=(1.0,) * 3)}},  # no gains for the current mode
-        {"joint_names": ("a", "a", "b")},
+    @pytest.mark.parametrize("change, why", [
+        ({"q_min": (0.0, 0.0)}, "q_min"),
+        ({"default_q": {"floating": (0.0,)}}, "default_q"),
+        ({"default_q": {"floating": (0.0, math.nan, 0.0)}}, "finite"),
+        ({"joint_names": ("a", "a", "b")}, "more than once"),
     ])
-    def test_inconsistent_info_is_refused(self, change: dict) -> None:
+    def test_an_inconsistent_info_does_not_decode(self, change: dict, why: str) -> None:
+        """Shapes are the schema's to check, once: such a RobotInfo never reaches the bridge."""
+        info = robot_info()
+        fields = {f: getattr(info, f) for f in info.__struct_fields__}
+        payload = msgspec.msgpack.encode({"type": "robot_info", **msgspec.to_builtins(info), **msgspec.to_builtins(change)})
+        with pytest.raises(DecodeError, match=why):
+            Codec(RobotInfo).decode(payload)
+        with pytest.raises(ValueError, match=why):
+            RobotInfo(**{**fields, **change})
+
+    def test_an_info_without_the_current_mode_is_unusable(self) -> None:
         info = robot_info()
         fields = {f: getattr(info, f) for f in info.__struct_fields__}
         with pytest.raises(UnusableRobotInfo):
-            RobotModel.from_info(RobotInfo(**{**fields, **change}))
+            RobotModel.from_info(RobotInfo(**{**fields, "gains": {"fixed": Gains(kp=(1.0,) * 3, kd=(1.0,) * 3)}}))
 
 
 def targets(names: tuple, q: tuple, dq: tuple | None = None) -> JointTargets:

@@ -28,7 +28,7 @@ MAX_TICK_S = 0.1
 
 
 class UnusableRobotInfo(ValueError):
-    """A robot description the bridge cannot use (vector lengths, a missing mode)."""
+    """A robot description the bridge cannot use (no pose or gains for the current mode)."""
 
 
 @dataclass(frozen=True)
@@ -52,18 +52,7 @@ class RobotModel:
     """The sim's episode when it described the robot (RobotInfo.episode); empty for local files."""
 
     def __post_init__(self) -> None:
-        n = len(self.joint_names)
-        if len(set(self.joint_names)) != n:
-            raise UnusableRobotInfo("joint_names names a joint more than once")
-        for name, vector in (("q_min", self.q_min), ("q_max", self.q_max)):
-            if vector.shape != (n,):
-                raise UnusableRobotInfo(f"{name} has {vector.size} values for {n} joints")
-        for table_name, table in (("default_q", self.default_q), ("kp", self.kp), ("kd", self.kd)):
-            for mode, vector in table.items():
-                if vector.shape != (n,):
-                    raise UnusableRobotInfo(f"{table_name}[{mode}] has {vector.size} values for {n} joints")
-                if not np.all(np.isfinite(vector)):
-                    raise UnusableRobotInfo(f"{table_name}[{mode}] holds a non-finite value")
+        # Shapes and finiteness were checked by the RobotInfo schema (or come from a built robot).
         if not self.has_mode(self.mode):
             raise UnusableRobotInfo(f"no default pose and gains for the current mode {self.mode!r}")
 
@@ -76,7 +65,7 @@ class RobotModel:
         """The model the sim describes on info/robot.
 
         Raises:
-            UnusableRobotInfo: inconsistent vector lengths or no data for the current mode.
+            UnusableRobotInfo: no data for the current mode.
         """
         return cls(
             joint_names=tuple(info.joint_names),
