@@ -27,7 +27,7 @@ from unitree_sdk import (
     new_low_cmd,
     unused_domain_id,
 )
-from zensim.schemas import JointState, Keys, UnitreeStatus
+from zensim.schemas import JointState, Keys, SimStatus, UnitreeStatus
 
 CONTROL_DT_S = 0.002
 ELBOW = 18  # left_elbow_joint in the G1's motor order
@@ -196,6 +196,45 @@ def test_bad_lowcmd_is_ignored_counted_and_survived(rig, zsession):
     adapter.signal(signal.SIGTERM)
     assert adapter.proc.wait(10) == 0
     assert not list(zsession.liveliness().get(keys.alive("unitree"), timeout=1.0))
+
+
+TWO_JOINT_ARM = """<robot name="two_joint_arm">
+  <link name="base"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="upper"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
+    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="lower"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
+    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="shoulder" type="revolute"><parent link="base"/><child link="upper"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
+  <joint name="elbow" type="revolute"><parent link="upper"/><child link="lower"/>
+    <origin xyz="0 0 0.3"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
+</robot>
+"""
+
+
+def test_a_restarted_sim_with_another_robot_is_learned_again(rig, zsession, start_service, tmp_path):
+    """The adapter maps motor i to the sim's joint i: after a restart with another robot the mapping
+    must be the new robot's, or every LowCmd_ names joints the new sim does not have."""
+    sim, adapter, client, keys = rig
+    joints = Latest(zsession, keys.joints, JointState)
+    joints.wait(lambda m: len(m.q) == G1_NUM_MOTOR, 20, "the G1's joint states")
+    assert sim.stop() == 0
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(TWO_JOINT_ARM)
+    start_service("sim", "--urdf", str(urdf), "--mode", "fixed", "--rtf", "1", "--state-rate-hz", "500")
+    wait_for(lambda: "robot from the restarted sim: 2 motors" in adapter.log() or not adapter.alive(), 30,
+             "the adapter to learn the two-joint arm")
+    assert adapter.alive(), adapter.log()
+
+    # motor 1 is now the arm's elbow: the SDK-style controller drives it, and LowState_ reports it.
+    sent = hold(client, {1: 1.0}, 2.0)
+    assert sent > 100
+    state = joints.wait(lambda m: len(m.q) == 2 and abs(m.q[1] - 1.0) < 0.1, 10, "the arm's elbow at 1.0 rad")
+    assert abs(state.q[0]) < 0.1, "motor 0 (disabled) moved the shoulder"
+    low_state = client.wait_state()
+    assert abs(low_state.motor_state[1].q - 1.0) < 0.1
+    status = Latest(zsession, keys.sim_status, SimStatus).wait(what="the new sim's status")
+    assert status.rejected_commands == 0, status.last_error
 
 
 def test_zensim_up_unitree_serves_an_sdk_controller(tmp_path, robot_id):

@@ -4,7 +4,8 @@ Reads:
     rt/lowcmd (DDS)                   LowCmd_: CRC checked, validated, forwarded to cmd/motors
     rt/api/motion_switcher/request    Request_: answered (switcher.py)
     {robot}/state/joints, state/imu   JointState + Imu of one instant -> one LowState_
-    {robot}/info/robot                RobotInfo, queried at start (the joint order)
+    {robot}/info/robot                RobotInfo, queried at start and after a sim restart (the joint order)
+    {robot}/state/sim                 SimStatus: a new `run_id` means a new sim, perhaps another robot
 Writes:
     rt/lowstate (DDS)                 LowState_, one per sim state (500 Hz sim states: 500 Hz LowState_)
     rt/api/motion_switcher/response   Response_
@@ -21,13 +22,15 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from dataclasses import dataclass
 
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
 from zensim.common.robot_info import fetch_robot
-from zensim.common.wire import TypedPublisher, payload_of
-from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, UnitreeStatus, bounded, topics
+from zensim.common.wire import TypedPublisher, decode_input
+from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, RobotInfo, SimStatus, UnitreeStatus, bounded, topics
+from zensim.schemas.bounds import vector_cap_bytes
 
 from . import switcher
 from .codec import NUM_MOTORS, CodecError, decode_low_cmd
@@ -40,6 +43,23 @@ logger = logging.getLogger("zensim.unitree")
 
 DDS_WAIT_S = 0.1
 """Longest the DDS thread blocks before it looks at the stop flag."""
+
+
+@dataclass(frozen=True)
+class Robot:
+    """What the adapter knows of the sim's robot."""
+
+    joint_names: tuple[str, ...]
+    """The canonical joint order: LowCmd_/LowState_ motor i is joint i."""
+    run_id: str
+    """The sim run that described it (RobotInfo.run_id)."""
+
+    @classmethod
+    def from_info(cls, info: RobotInfo) -> Robot:
+        """Raises ValueError for a robot with more joints than LowCmd_ has motor slots."""
+        if len(info.joint_names) > NUM_MOTORS:
+            raise ValueError(f"the robot has {len(info.joint_names)} joints; LowCmd_ has {NUM_MOTORS} motor slots")
+        return cls(tuple(info.joint_names), info.run_id)
 
 
 class Counters:
@@ -61,16 +81,18 @@ class Counters:
 class UnitreeAdapter:
     """The running adapter (see the module docstring)."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys, joint_names: tuple[str, ...],
-                 settings: UnitreeSettings, dds: UnitreeDds) -> None:
-        self._joint_names = joint_names
+    def __init__(self, session: zenoh.Session, keys: Keys, robot: Robot, settings: UnitreeSettings,
+                 dds: UnitreeDds) -> None:
         self._settings = settings
         self._dds = dds
         self._lock = threading.Lock()
         self.counters = Counters()
-        self._builder = LowStateBuilder(len(joint_names), settings.mode_machine)
+        self.sim_restarted = threading.Event()
+        """Set when state/sim comes from another sim run: the loop learns the robot again."""
+        self.adopt(robot)
         self._joints_codec = Codec(JointState)
         self._imu_codec = Codec(Imu)
+        self._sim_codec = Codec(SimStatus)
         self._reject_log = RateLimitedLog(logger, 1.0)
         self._state_log = RateLimitedLog(logger, 5.0)
         self._ab_logged = False
@@ -79,7 +101,16 @@ class UnitreeAdapter:
         self._subscribers = [
             session.declare_subscriber(keys.joints, self._on_joints),
             session.declare_subscriber(keys.imu, self._on_imu),
+            session.declare_subscriber(keys.sim_status, self._on_sim_status),
         ]
+
+    def adopt(self, robot: Robot) -> None:
+        """Take `robot` (at start, and after a sim restart): its joint order is the motor order."""
+        with self._lock:
+            self._robot = robot
+            self._builder = LowStateBuilder(len(robot.joint_names), self._settings.mode_machine)
+            self._cap_bytes = vector_cap_bytes(robot.joint_names)
+            self.sim_restarted.clear()
 
     # --- zensim -> DDS (zenoh threads) -------------------------------------------
 
@@ -89,9 +120,19 @@ class UnitreeAdapter:
     def _on_imu(self, sample: zenoh.Sample) -> None:
         self._on_state(sample, self._imu_codec, "imu")
 
+    def _on_sim_status(self, sample: zenoh.Sample) -> None:
+        try:
+            status = decode_input(sample, self._sim_codec, self._cap_bytes)
+        except DecodeError as exc:
+            self._state_log.warning("ignoring bad SimStatus: %s", exc)
+            return
+        if status.run_id and status.run_id != self._robot.run_id and not self.sim_restarted.is_set():
+            logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
+            self.sim_restarted.set()
+
     def _on_state(self, sample: zenoh.Sample, codec: Codec, which: str) -> None:
         try:
-            message = codec.decode(*payload_of(sample))
+            message = decode_input(sample, codec, self._cap_bytes)
             with self._lock:
                 data = getattr(self._builder, which)(message)
                 if data is None:
@@ -115,7 +156,7 @@ class UnitreeAdapter:
                 crc_error = True
                 error = f"crc mismatch (got {low_cmd.crc:#010x}): ignored, as the robot does"
             else:
-                command = motor_command(low_cmd, self._joint_names)
+                command = motor_command(low_cmd, self._robot.joint_names)
         except (CodecError, LowCmdError) as exc:
             error = bounded(str(exc))
         with self._lock:
@@ -208,24 +249,27 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
     """
     keys = Keys(settings.robot_id)
     logger.info("asking the sim on %s", keys.robot_info)
-    joint_names = fetch_robot(session, keys, settings.info_timeout_s, stop, lambda info: info.joint_names, logger)
-    if joint_names is None:
+    robot = fetch_robot(session, keys, settings.info_timeout_s, stop, Robot.from_info, logger)
+    if robot is None:
         return 0
-    if len(joint_names) > NUM_MOTORS:
-        logger.error("the robot has %d joints; LowCmd_ has %d motor slots", len(joint_names), NUM_MOTORS)
-        return 2
     dds = UnitreeDds(settings.domain_id, settings.interface)
-    adapter = UnitreeAdapter(session, keys, joint_names, settings, dds)
+    adapter = UnitreeAdapter(session, keys, robot, settings, dds)
     dds_thread = threading.Thread(target=adapter.dds_loop, args=(stop,), name="dds", daemon=True)
     dds_thread.start()
     token = session.liveliness().declare_token(keys.alive("unitree"))
-    logger.info("unitree adapter up: %d motors <-> %s; DDS domain %d on %s", len(joint_names), keys.root,
+    logger.info("unitree adapter up: %d motors <-> %s; DDS domain %d on %s", len(robot.joint_names), keys.root,
                 settings.domain_id, settings.interface or "(auto)")
     period_s = 1.0 / settings.status_rate_hz
     seq = 0
     last_count, last_time = 0, time.monotonic()
     try:
         while not stop.wait(period_s):
+            if adapter.sim_restarted.is_set():
+                robot = fetch_robot(session, keys, settings.info_timeout_s, stop, Robot.from_info, logger)
+                if robot is None:
+                    break
+                adapter.adopt(robot)
+                logger.info("robot from the restarted sim: %d motors", len(robot.joint_names))
             now = time.monotonic()
             count = adapter.counters.lowstate_published
             adapter.publish_status(seq, (count - last_count) / (now - last_time))
