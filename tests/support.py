@@ -138,3 +138,18 @@ def plain_client(endpoint: str, wait_for_router: bool = False):
     if wait_for_router:
         conf.insert_json5("connect/timeout_ms", "-1")
     return zenoh.open(conf)
+
+
+# A robot other than the G1, for tests that restart the sim with another robot.
+TWO_JOINT_ARM = """<robot name="two_joint_arm">
+  <link name="base"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="upper"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
+    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <link name="lower"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
+    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="shoulder" type="revolute"><parent link="base"/><child link="upper"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
+  <joint name="elbow" type="revolute"><parent link="upper"/><child link="lower"/>
+    <origin xyz="0 0 0.3"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
+</robot>
+"""

@@ -18,7 +18,7 @@ import msgspec
 import pytest
 import zenoh
 
-from support import Service, wait_for
+from support import TWO_JOINT_ARM, Service, wait_for
 from zensim.common.wire import payload_of
 from zensim.schemas import (
     BridgeReport,
@@ -262,20 +262,6 @@ def test_waits_for_the_sim_then_exits_0_on_sigterm(
     assert bridge.proc.wait(5) == 0, bridge.log()
     assert time.monotonic() - started < 2.0
     wait_for(lambda: not is_alive(zsession, keys.alive("bridge")), 5, "alive/bridge to disappear")
-
-
-TWO_JOINT_ARM = """<robot name="two_joint_arm">
-  <link name="base"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
-  <link name="upper"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
-    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
-  <link name="lower"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
-    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
-  <joint name="shoulder" type="revolute"><parent link="base"/><child link="upper"/>
-    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
-  <joint name="elbow" type="revolute"><parent link="upper"/><child link="lower"/>
-    <origin xyz="0 0 0.3"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
-</robot>
-"""
 
 
 def test_a_restarted_sim_is_learned_again_even_with_another_robot(fixed_rig: Rig, zsession: zenoh.Session, tmp_path) -> None:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from cyclonedds._clayer import ddspy_write
 
-from support import Latest, ctl, free_port, plain_client, wait_for
+from support import TWO_JOINT_ARM, Latest, ctl, free_port, plain_client, wait_for
 from unitree_sdk import (
     G1_NUM_MOTOR,
     KD,
@@ -196,20 +196,6 @@ def test_bad_lowcmd_is_ignored_counted_and_survived(rig, zsession):
     adapter.signal(signal.SIGTERM)
     assert adapter.proc.wait(10) == 0
     assert not list(zsession.liveliness().get(keys.alive("unitree"), timeout=1.0))
-
-
-TWO_JOINT_ARM = """<robot name="two_joint_arm">
-  <link name="base"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
-  <link name="upper"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
-    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
-  <link name="lower"><visual><geometry><box size="0.04 0.04 0.3"/></geometry></visual>
-    <inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
-  <joint name="shoulder" type="revolute"><parent link="base"/><child link="upper"/>
-    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
-  <joint name="elbow" type="revolute"><parent link="upper"/><child link="lower"/>
-    <origin xyz="0 0 0.3"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="50" velocity="5"/></joint>
-</robot>
-"""
 
 
 def test_a_restarted_sim_with_another_robot_is_learned_again(rig, zsession, start_service, tmp_path):
