@@ -26,6 +26,8 @@ STATE_CAP_BYTES: Final = 256 * 1024
 """A state sample read by a service that does not know the robot yet (the viz): generous, still bounded."""
 INFO_CAP_BYTES: Final = 8 * 1024 * 1024
 """A RobotInfo reply: the protocol table and the mesh list included, with room for large robots."""
+DESCRIPTION_CAP_BYTES: Final = 64 * 1024 * 1024
+"""One info/urdf or info/mesh/{path} reply: the largest G1 mesh is 2.3 MB; a runaway reply is refused."""
 
 _LONGEST_NUMBER: Final = -1.2345678901234567e-308
 """A float whose JSON spelling is as long as any (24 characters)."""

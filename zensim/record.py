@@ -27,8 +27,9 @@ import zenoh
 from zensim.common.entry import fail, serve
 from zensim.common.logs import RateLimitedLog, setup_logging
 from zensim.common.settings import CommonSettings, settings_or_exit
-from zensim.common.wire import payload_of
+from zensim.common.wire import payload_of, read_payload
 from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, SimStatus, decode_scalar
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES
 
 from .mcapfile import ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter, message_type_of, split_key
 
@@ -110,7 +111,7 @@ class Recorder:
     def _get(self, key: str) -> bytes:
         for reply in self.session.get(key, timeout=2.0):
             if reply.ok is not None:
-                return reply.ok.payload.to_bytes()
+                return read_payload(reply.ok, DESCRIPTION_CAP_BYTES)[0]
             raise ValueError(reply.err.payload.to_string()[:200])
         raise TimeoutError(f"no reply on {key}")
 

@@ -36,7 +36,7 @@ import zenoh
 
 from zensim.common.logs import RateLimitedLog
 from zensim.common.session import StartupError
-from zensim.common.wire import TypedPublisher, decode_input, error_text
+from zensim.common.wire import TypedPublisher, decode_input, error_text, read_payload
 from zensim.robots.description import RobotModelError, load_description, parse_urdf
 from zensim.robots.mesh_files import resolve_mesh
 from zensim.schemas import topics
@@ -59,7 +59,7 @@ from zensim.schemas import (
     bounded,
     encoding_of,
 )
-from zensim.schemas.bounds import STATE_CAP_BYTES
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, INFO_CAP_BYTES, STATE_CAP_BYTES
 
 from . import panel, plots, scene
 from .settings import VizSettings
@@ -195,18 +195,18 @@ class VizService:
                 continue
             self.loop.add_callback(self._install, drawing)
 
-    def _get_bytes(self, key: str, payload: bytes | None = None) -> bytes:
-        """One zenoh get; the first good reply's payload.
+    def _get_bytes(self, key: str, payload: bytes | None = None, cap_bytes: int = DESCRIPTION_CAP_BYTES) -> bytes:
+        """One zenoh get; the first good reply's payload, at most `cap_bytes` long.
 
         Raises:
             TimeoutError: no reply within query_timeout_s.
-            ValueError: the queryable answered with an error.
+            ValueError: the queryable answered with an error, or a reply over the cap (DecodeError).
         """
         replies = self.session.get(key, payload=payload, encoding=zenoh.Encoding(encoding_of("msgpack")) if payload is not None else None,
                                    timeout=self.settings.query_timeout_s)
         for reply in replies:
             if reply.ok is not None:
-                return reply.ok.payload.to_bytes()
+                return read_payload(reply.ok, cap_bytes)[0]
             raise ValueError(f"{key}: {error_text(reply.err)}")
         raise TimeoutError(f"no reply on {key} within {self.settings.query_timeout_s} s")
 
@@ -217,7 +217,7 @@ class VizService:
         with self.alive_lock:
             sim_alive = "sim" in self.alive
         if sim_alive or not self.settings.urdf:
-            info = self._codecs[RobotInfo].decode(self._get_bytes(self.keys.robot_info))
+            info = self._codecs[RobotInfo].decode(self._get_bytes(self.keys.robot_info, cap_bytes=INFO_CAP_BYTES))
         meshes: dict[str, bytes] = {}
         if self.settings.urdf:
             urdf_path = Path(self.settings.urdf).expanduser().resolve()
@@ -357,7 +357,7 @@ class VizService:
         }.get(command.verb) or ModeRequest(mode=command.mode)  # type: ignore[arg-type]
         out: dict[str, Any] = {"type": "ctl_reply", "verb": command.verb}
         try:
-            raw = self._get_bytes(self.keys.ctl(command.verb), Codec(type(request)).encode(request))
+            raw = self._get_bytes(self.keys.ctl(command.verb), Codec(type(request)).encode(request), STATE_CAP_BYTES)
             reply = self._codecs[CtlReply].decode(raw)
         except (TimeoutError, ValueError, zenoh.ZError) as exc:
             out.update(ok=False, error=bounded(str(exc)))
