@@ -1,9 +1,12 @@
-"""Write the JSON Schema of every wire message into schemas/jsonschema/, and the protocol table into docs.
+"""Write the JSON Schema of every wire message into schemas/jsonschema/, and the registry's tables into docs.
 
 Run `python -m zensim.schemas.generate` after changing messages.py or
-topics.py; a test fails while the files are stale. The table goes between
-the `<!-- topics:begin -->` and `<!-- topics:end -->` lines of
-docs/protocol.md, when run from a checkout (an installed package has no docs).
+topics.py; a test fails while the files are stale. Each table goes between
+two marker lines, when run from a checkout (an installed package has no docs):
+`<!-- topics:begin -->` / `<!-- topics:end -->` (the protocol table, docs/protocol.md),
+`<!-- roles:begin -->` / `<!-- roles:end -->` (the role table, docs/security.md),
+`<!-- keys:ROLE:begin -->` / `<!-- keys:ROLE:end -->` (the keys one service's role
+writes and reads, in its README).
 """
 
 from __future__ import annotations
@@ -11,18 +14,22 @@ from __future__ import annotations
 import ast
 import inspect
 import json
+import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
 
 from . import messages
 from .messages import WIRE_TYPES, Message
-from .topics import protocol_table
+from .topics import protocol_table, role_table, service_key_table
 
 SCHEMA_DIR = Path(__file__).parent / "jsonschema"
-PROTOCOL_DOC = Path(__file__).resolve().parent.parent / "docs" / "protocol.md"
+CHECKOUT = Path(__file__).resolve().parent.parent
+PROTOCOL_DOC = CHECKOUT / "docs" / "protocol.md"
 TABLE_BEGIN, TABLE_END = "<!-- topics:begin -->\n", "<!-- topics:end -->\n"
+SECTION = re.compile(r"<!-- (?P<name>[a-z0-9:_-]+):begin -->\n.*?<!-- (?P=name):end -->\n", re.DOTALL)
 
 
 def attribute_docs(cls: type) -> dict[str, str]:
@@ -88,14 +95,47 @@ def with_protocol_table(doc: str) -> str:
     return head + TABLE_BEGIN + protocol_table() + TABLE_END + tail
 
 
+def section_renderer(name: str) -> Callable[[], str]:
+    """What renders the section called `name` (`topics`, `roles`, `keys:<role>`); KeyError if none does."""
+    if name == "topics":
+        return protocol_table
+    if name == "roles":
+        return role_table
+    if name.startswith("keys:"):
+        role = name.split(":", 1)[1]
+        service_key_table(role)  # raises KeyError for an unknown role
+        return lambda: service_key_table(role)
+    raise KeyError(name)
+
+
+def generated_docs() -> list[Path]:
+    """The docs of the checkout that hold generated sections: docs/*.md and every services/*/README.md."""
+    candidates = [*sorted((CHECKOUT / "docs").glob("*.md")), *sorted((CHECKOUT / "services").glob("*/README.md"))]
+    return [doc for doc in candidates if sections(doc.read_text())]
+
+
+def sections(doc: str) -> list[str]:
+    """The names of the generated sections in `doc`."""
+    return [m.group("name") for m in SECTION.finditer(doc)]
+
+
+def with_sections(doc: str) -> str:
+    """`doc` with every generated section (between its marker lines) rendered anew from the registry."""
+    def render_one(match: re.Match[str]) -> str:
+        name = match.group("name")
+        return f"<!-- {name}:begin -->\n{section_renderer(name)()}<!-- {name}:end -->\n"
+
+    return SECTION.sub(render_one, doc)
+
+
 def main() -> int:
     SCHEMA_DIR.mkdir(exist_ok=True)
     for name, text in render().items():
         (SCHEMA_DIR / name).write_text(text)
         print(SCHEMA_DIR / name)
-    if PROTOCOL_DOC.is_file():
-        PROTOCOL_DOC.write_text(with_protocol_table(PROTOCOL_DOC.read_text()))
-        print(PROTOCOL_DOC)
+    for doc in generated_docs():
+        doc.write_text(with_sections(doc.read_text()))
+        print(doc)
     return 0
 
 

@@ -20,7 +20,8 @@ SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree")
 """Every service that declares `alive/{service}`; `zensim up` starts the first four in this order (the
 unitree adapter in place of the bridge with `--unitree`)."""
 
-CTL_VERBS: Final = ("reset", "pause", "resume", "step", "mode", "advance")
+CTL_VERBS: Final = tuple(t.key.split("/", 1)[1] for t in TOPICS if t.key.startswith("ctl/"))
+"""The control queryables' verbs (`ctl/{verb}`), from the registry."""
 
 
 def check_robot_id(robot: str) -> str:
@@ -37,24 +38,36 @@ class Keys:
         robot: the robot id, the `{robot}` chunk (default `g1`).
     """
 
+    # One attribute per topic of the registry, named by `Topic.name` and set from it in __init__: the
+    # key is never written here (a placeholder becomes its wildcard). Declared for type checkers; a
+    # check below this class fails at import when these names and the registry's disagree.
+    joints: str
+    odom: str
+    imu: str
+    sim_status: str
+    bridge_targets: str
+    unitree_status: str
+    motors: str
+    joint_targets: str
+    joint_target_any: str
+    bridge_report: str
+    ctl_reset: str
+    ctl_pause: str
+    ctl_resume: str
+    ctl_step: str
+    ctl_mode: str
+    ctl_advance: str
+    applied: str
+    robot_info: str
+    urdf: str
+    mesh_any: str
+    alive_any: str
+
     def __init__(self, robot: str = DEFAULT_ROBOT_ID) -> None:
         self.robot = check_robot_id(robot)
         self.root = f"{ROOT}/{robot}"
-        self.joints = f"{self.root}/state/joints"
-        self.odom = f"{self.root}/state/odom"
-        self.imu = f"{self.root}/state/imu"
-        self.sim_status = f"{self.root}/state/sim"
-        self.motors = f"{self.root}/cmd/motors"
-        self.joint_targets = f"{self.root}/cmd/joints"
-        self.joint_target_any = f"{self.root}/cmd/joint/*"
-        self.bridge_targets = f"{self.root}/state/targets"
-        self.bridge_report = f"{self.root}/report/bridge"
-        self.robot_info = f"{self.root}/info/robot"
-        self.urdf = f"{self.root}/info/urdf"
-        self.mesh_any = f"{self.root}/info/mesh/**"
-        self.alive_any = f"{self.root}/alive/*"
-        self.unitree_status = f"{self.root}/state/unitree"
-        self.applied = f"{self.root}/state/applied"
+        for topic in TOPICS:
+            setattr(self, topic.name, f"{self.root}/{topic.pattern()}")
         self.everything = f"{self.root}/**"
 
     def of(self, topic: Topic) -> str:
@@ -78,7 +91,7 @@ class Keys:
         """Key of a control queryable (`reset`, `pause`, `resume`, `step`, `mode`)."""
         if verb not in CTL_VERBS:
             raise ValueError(f"unknown ctl verb {verb!r}; expected one of {CTL_VERBS}")
-        return f"{self.root}/ctl/{verb}"
+        return getattr(self, f"ctl_{verb}")
 
     def mesh(self, path: str) -> str:
         """Key serving the bytes of the mesh file `path`, written as the URDF names it.
@@ -102,6 +115,12 @@ class Keys:
     def table(self) -> tuple[KeyInfo, ...]:
         """The protocol table for this robot (served in RobotInfo.keys), from the topic registry."""
         return tuple(topic.info(self.root) for topic in TOPICS)
+
+
+_KEY_NAMES = {name for name, kind in Keys.__annotations__.items() if kind == "str"}
+if _KEY_NAMES != {t.name for t in TOPICS}:
+    raise RuntimeError(f"Keys' attributes and the topic registry's names differ: "
+                       f"{sorted(_KEY_NAMES ^ {t.name for t in TOPICS})}")
 
 
 def mesh_key_path(filename: str) -> str:

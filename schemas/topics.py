@@ -1,10 +1,16 @@
 """The topic registry: every key of the wire contract, what travels on it, who writes and who reads it.
 
-One table, `TOPICS`, and everything else is read from it: `Keys` builds the
-paths, the sim serves it in `RobotInfo.keys`, services take their codecs'
-message types from it (`topic.message`), and the protocol table in
-docs/protocol.md is generated from it (`python -m zensim.schemas.generate`)
-and checked by a test, so a topic added here without the docs fails CI.
+Two tables, and everything else is read from them:
+
+- `TOPICS`, what travels: `Keys` builds its key attributes from it, the sim serves it in
+  `RobotInfo.keys`, services take their codecs' message types from it (`topic.message`).
+- `ROLES`, who may write and read which keys: one line per role (a service's own
+  credentials, or a client's). The router's access rules (services/common/secure.py), the
+  role table of docs/security.md and the key table of each service's README are generated
+  from it, and tests/test_roles.py fails when a service declares anything its role lacks.
+
+The docs' tables are generated (`python -m zensim.schemas.generate`) and checked by a test,
+so a topic or role added here without the docs fails CI.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from .messages import (
 )
 
 Kind = Literal["publication", "queryable", "liveliness"]
+RoleKind = Literal["service", "client"]
 
 
 @dataclass(frozen=True)
@@ -51,6 +58,9 @@ class Topic:
         reply: a queryable's reply Struct.
         payload: what travels when it is not a Struct (`float`, `URDF text (application/xml)`).
         note: a few words the docs add after the message name.
+        name: the attribute of `Keys` that holds this topic's key expression (a placeholder becomes a
+            wildcard: `cmd/joint/{joint}` -> `joint_target_any` = `.../cmd/joint/*`).
+        wildcard: what a placeholder becomes in that key expression: `*` (one chunk) or `**` (a path).
     """
 
     key: str
@@ -62,6 +72,12 @@ class Topic:
     reply: type[Message] | None = None
     payload: str = ""
     note: str = ""
+    name: str = ""
+    wildcard: Literal["*", "**"] = "*"
+
+    def pattern(self) -> str:
+        """The key under `zensim/{robot}/` as a key expression: each placeholder made the wildcard."""
+        return "/".join(self.wildcard if chunk.startswith("{") else chunk for chunk in self.key.split("/"))
 
     def wire_name(self) -> str:
         """The message as `RobotInfo.keys` names it: struct tags (`reset_request -> ctl_reply`) or the payload."""
@@ -90,44 +106,44 @@ def _tag(message: type[Message]) -> str:
 
 # --- state: sim (and other services) -> anyone ------------------------------------
 JOINTS: Final = Topic("state/joints", "publication", "sim", "anyone", "100 Hz default (`state_rate_hz`), sim time",
-                      JointState)
-ODOM: Final = Topic("state/odom", "publication", "sim", "anyone", "with `state/joints`", Odometry)
-IMU: Final = Topic("state/imu", "publication", "sim", "anyone", "with `state/joints`", Imu)
-SIM_STATUS: Final = Topic("state/sim", "publication", "sim", "anyone", "~10 Hz wall time (`status_rate_hz`)", SimStatus)
+                      JointState, name="joints")
+ODOM: Final = Topic("state/odom", "publication", "sim", "anyone", "with `state/joints`", Odometry, name="odom")
+IMU: Final = Topic("state/imu", "publication", "sim", "anyone", "with `state/joints`", Imu, name="imu")
+SIM_STATUS: Final = Topic("state/sim", "publication", "sim", "anyone", "~10 Hz wall time (`status_rate_hz`)", SimStatus, name="sim_status")
 BRIDGE_TARGETS: Final = Topic("state/targets", "publication", "bridge", "viz (ghost), anyone",
                               "`targets_rate_hz`, default 30 Hz", JointTargets,
-                              note="(all joints, as commanded after clamping and slew)")
+                              note="(all joints, as commanded after clamping and slew)", name="bridge_targets")
 UNITREE_STATUS: Final = Topic("state/unitree", "publication", "unitree (the Unitree DDS adapter, docs/unitree.md)",
-                              "anyone", "`status_rate_hz`, default 2 Hz", UnitreeStatus)
+                              "anyone", "`status_rate_hz`, default 2 Hz", UnitreeStatus, name="unitree_status")
 # --- commands -------------------------------------------------------------------
 MOTORS: Final = Topic("cmd/motors", "publication", "bridge, unitree, or any client (a policy)", "sim",
-                      "any; latest wins at each physics step", MotorCommand)
+                      "any; latest wins at each physics step", MotorCommand, name="motors")
 JOINT_TARGETS: Final = Topic("cmd/joints", "publication", "sliders, any client", "bridge", "any; latest wins",
-                             JointTargets)
+                             JointTargets, name="joint_targets")
 JOINT_TARGET: Final = Topic("cmd/joint/{joint}", "publication", "any client", "bridge", "any; latest wins",
-                            payload="float", note="(a bare number: JSON/text or msgpack)")
+                            payload="float", note="(a bare number: JSON/text or msgpack)", name="joint_target_any")
 BRIDGE_REPORT: Final = Topic("report/bridge", "publication", "bridge", "anyone", "one per rejected or clamped input",
-                             BridgeReport)
+                             BridgeReport, name="bridge_report")
 # --- control: queries the sim answers --------------------------------------------
-CTL_RESET: Final = Topic("ctl/reset", "queryable", "any client", "sim", "on demand", ResetRequest, CtlReply)
-CTL_PAUSE: Final = Topic("ctl/pause", "queryable", "any client", "sim", "on demand", PauseRequest, CtlReply)
-CTL_RESUME: Final = Topic("ctl/resume", "queryable", "any client", "sim", "on demand", ResumeRequest, CtlReply)
+CTL_RESET: Final = Topic("ctl/reset", "queryable", "any client", "sim", "on demand", ResetRequest, CtlReply, name="ctl_reset")
+CTL_PAUSE: Final = Topic("ctl/pause", "queryable", "any client", "sim", "on demand", PauseRequest, CtlReply, name="ctl_pause")
+CTL_RESUME: Final = Topic("ctl/resume", "queryable", "any client", "sim", "on demand", ResumeRequest, CtlReply, name="ctl_resume")
 CTL_STEP: Final = Topic("ctl/step", "queryable", "any client", "sim", "on demand, while paused", StepRequest, CtlReply,
-                        note="(after the steps ran)")
-CTL_MODE: Final = Topic("ctl/mode", "queryable", "any client", "sim", "on demand", ModeRequest, CtlReply)
+                        note="(after the steps ran)", name="ctl_step")
+CTL_MODE: Final = Topic("ctl/mode", "queryable", "any client", "sim", "on demand", ModeRequest, CtlReply, name="ctl_mode")
 CTL_ADVANCE: Final = Topic("ctl/advance", "queryable", "any client (a controller)", "sim",
                            "on demand, under `clock: lockstep`", MotorCommand, AdvanceReply,
-                           note="(after the steps ran)")
+                           note="(after the steps ran)", name="ctl_advance")
 APPLIED: Final = Topic("state/applied", "publication", "sim", "anyone (the recorder, resim)",
-                       "one per lockstep advance", AppliedCommand)
+                       "one per lockstep advance", AppliedCommand, name="applied")
 # --- description ------------------------------------------------------------------
 ROBOT_INFO: Final = Topic("info/robot", "queryable", "sim", "anyone", "on demand", RobotInfo,
-                          note="(JSON for `?format=json` or a JSON query payload)")
-URDF: Final = Topic("info/urdf", "queryable", "sim", "anyone", "on demand", payload="URDF text (application/xml)")
+                          note="(JSON for `?format=json` or a JSON query payload)", name="robot_info")
+URDF: Final = Topic("info/urdf", "queryable", "sim", "anyone", "on demand", payload="URDF text (application/xml)", name="urdf")
 MESH: Final = Topic("info/mesh/{path}", "queryable", "sim", "anyone", "on demand",
-                    payload="mesh bytes (application/octet-stream)")
+                    payload="mesh bytes (application/octet-stream)", name="mesh_any", wildcard="**")
 ALIVE: Final = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree", "anyone",
-                     "while running", payload="token")
+                     "while running", payload="token", name="alive_any")
 
 TOPICS: Final[tuple[Topic, ...]] = (
     JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS,
@@ -138,9 +154,168 @@ TOPICS: Final[tuple[Topic, ...]] = (
 """Every topic, in the order the docs list them."""
 
 
+# --- roles: who may write and read what ----------------------------------------------------------
+@dataclass(frozen=True)
+class Role:
+    """What one credential may do, as key expressions under `zensim/{robot}/` (`*` one chunk, `**` a path).
+
+    One line per role: adding a role is adding a line here (and `zensim secure init` makes its
+    credentials). Every pattern must cover at least one topic of the matching kind (a test checks).
+
+    Args:
+        name: the role (the user name and `zensim-<name>` certificate name of its credentials).
+        kind: a zensim service (runs with its own credentials) or a client (people and tools).
+        summary: a few words for the docs.
+        publishes: keys it puts on (publications).
+        subscribes: keys it declares subscribers on (publications).
+        serves: keys it declares queryables on and replies from.
+        queries: keys it sends queries to (`get`, queriers).
+        tokens: liveliness tokens it declares.
+    """
+
+    name: str
+    kind: RoleKind
+    summary: str
+    publishes: tuple[str, ...] = ()
+    subscribes: tuple[str, ...] = ()
+    serves: tuple[str, ...] = ()
+    queries: tuple[str, ...] = ()
+    tokens: tuple[str, ...] = ()
+
+    def writes(self) -> tuple[str, ...]:
+        return (*self.publishes, *self.serves, *self.tokens)
+
+    def reads(self) -> tuple[str, ...]:
+        return (*self.subscribes, *self.queries, *EVERY_ROLE_WATCHES)
+
+
+EVERY_ROLE_WATCHES: Final = ("alive/*",)
+"""Liveliness every role may watch (liveliness subscribers and queries): who is up is no secret."""
+
+ROLES: Final[tuple[Role, ...]] = (
+    Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**"), tokens=("alive/sim",)),
+    Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
+    Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*"), tokens=("alive/viz",)),
+    Role("unitree", "service", "the Unitree DDS adapter (and its locomotion controller)", publishes=("cmd/motors", "state/unitree"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/unitree",)),
+    Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
+    Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/robot", "info/urdf")),
+    Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/robot", "info/urdf"), tokens=("alive/sim", "alive/replay")),
+    Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**")),
+    Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**",)),
+)
+"""Every role. The router denies everything a role does not list (docs/security.md)."""
+
+ROLE_NAMES: Final = tuple(role.name for role in ROLES)
+
+
+def role(name: str) -> Role:
+    """The role called `name`; KeyError names the known ones."""
+    for candidate in ROLES:
+        if candidate.name == name:
+            return candidate
+    raise KeyError(f"no role {name!r}; roles: {', '.join(ROLE_NAMES)}")
+
+
+def includes(pattern: str, key: str) -> bool:
+    """Whether key expression `pattern` covers every key `key` can stand for (zenoh's `includes`).
+
+    Both are chunks joined by `/`; `*` is one chunk, `**` any number of chunks. Pure Python so the
+    registry needs no zenoh (a test checks it against zenoh's own).
+    """
+    return _includes(pattern.split("/"), key.split("/"))
+
+
+def _includes(pattern: list[str], key: list[str]) -> bool:
+    if not pattern:
+        return not key
+    head, rest = pattern[0], pattern[1:]
+    if head == "**":
+        return any(_includes(rest, key[i:]) for i in range(len(key) + 1))
+    if not key or key[0] == "**":
+        return False
+    return (head == "*" or head == key[0]) and _includes(rest, key[1:])
+
+
+def intersects(a: str, b: str) -> bool:
+    """Whether some key matches both key expressions (zenoh's `intersects`)."""
+    return _intersects(a.split("/"), b.split("/"))
+
+
+def _intersects(a: list[str], b: list[str]) -> bool:
+    if not a or not b:
+        return all(chunk == "**" for chunk in a + b)
+    if a[0] == "**":
+        return _intersects(a[1:], b) or _intersects(a, b[1:])
+    if b[0] == "**":
+        return _intersects(b, a)
+    return (a[0] == "*" or b[0] == "*" or a[0] == b[0]) and _intersects(a[1:], b[1:])
+
+
+ROLE_USES: Final[tuple[tuple[str, str, Kind], ...]] = (
+    ("publishes", "publishes", "publication"), ("subscribes", "subscribes", "publication"),
+    ("serves", "serves", "queryable"), ("queries", "queries", "queryable"), ("token", "tokens", "liveliness"))
+"""How a role uses a key: (verb for the docs, `Role` field, the kind of topic it applies to)."""
+
+
+def covered_topics(pattern: str, kind: Kind) -> list[Topic]:
+    """The topics of `kind` that key expression `pattern` (under `zensim/{robot}/`) reaches."""
+    return [t for t in TOPICS if t.kind == kind and intersects(pattern, t.pattern())]
+
+
+def _roles_on(topic: Topic, field: str) -> tuple[str, ...]:
+    return tuple(r.name for r in ROLES if any(intersects(p, topic.pattern()) for p in getattr(r, field)))
+
+
+def writers(topic: Topic) -> tuple[str, ...]:
+    """The roles that may write `topic`: publish it, serve it or hold its token."""
+    field = {"publication": "publishes", "queryable": "serves", "liveliness": "tokens"}[topic.kind]
+    return _roles_on(topic, field)
+
+
+def readers(topic: Topic) -> tuple[str, ...]:
+    """The roles that may read `topic`: subscribe to it, query it or watch its token."""
+    if topic.kind == "liveliness":
+        return ROLE_NAMES if any(intersects(p, topic.pattern()) for p in EVERY_ROLE_WATCHES) else ()
+    return _roles_on(topic, "subscribes" if topic.kind == "publication" else "queries")
+
+
 def protocol_table() -> str:
     """The Markdown protocol table of docs/protocol.md, rendered from `TOPICS`."""
-    rows = ["| key (under `zensim/{robot}/`) | kind | message | writer | reader | rate |", "|---|---|---|---|---|---|"]
+    rows = ["| key (under `zensim/{robot}/`) | kind | message | writer | reader | rate | roles: write / read |",
+            "|---|---|---|---|---|---|---|"]
     for topic in TOPICS:
-        rows.append(f"| `{topic.key}` | {topic.kind} | {topic.doc_name()} | {topic.writer} | {topic.reader} | {topic.rate} |")
+        roles = f"{', '.join(writers(topic)) or '-'} / {_readers_text(topic)}"
+        rows.append(f"| `{topic.key}` | {topic.kind} | {topic.doc_name()} | {topic.writer} | {topic.reader} | {topic.rate} "
+                    f"| {roles} |")
+    return "\n".join(rows) + "\n"
+
+
+def _readers_text(topic: Topic) -> str:
+    names = readers(topic)
+    return "every role" if names == ROLE_NAMES else ", ".join(names) or "-"
+
+
+def _keys_text(patterns: tuple[str, ...]) -> str:
+    return ", ".join(f"`{p}`" for p in patterns) or "-"
+
+
+def role_table() -> str:
+    """The Markdown role table of docs/security.md, rendered from `ROLES`."""
+    rows = ["| role | what | publishes | subscribes | serves | queries | liveliness token |",
+            "|---|---|---|---|---|---|---|"]
+    for r in ROLES:
+        rows.append(f"| {r.name} ({r.kind}) | {r.summary} | {_keys_text(r.publishes)} | {_keys_text(r.subscribes)} "
+                    f"| {_keys_text(r.serves)} | {_keys_text(r.queries)} | {_keys_text(r.tokens)} |")
+    return "\n".join(rows) + "\n"
+
+
+def service_key_table(name: str) -> str:
+    """The Markdown table of the keys one role writes and reads, for its service's README."""
+    r = role(name)
+    rows = ["| key (under `zensim/{robot}/`) | as | kind | message |", "|---|---|---|---|"]
+    for verb, patterns, kind in ROLE_USES:
+        for pattern in getattr(r, patterns):
+            covered = covered_topics(pattern, kind)
+            message = covered[0].doc_name() if len(covered) == 1 else ", ".join(f"`{t.key}`" for t in covered)
+            rows.append(f"| `{pattern}` | {verb} | {kind} | {message} |")
     return "\n".join(rows) + "\n"

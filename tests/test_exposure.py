@@ -117,3 +117,35 @@ def test_compose_defaults_publish_on_loopback_and_scout_nowhere() -> None:
         for port in service.get("ports", []):
             assert port.startswith("${ZENSIM_BIND:-127.0.0.1}:"), (name, port)
         assert service["environment"]["ZENSIM_ZENOH_MULTICAST_SCOUTING"] == "false", name
+
+
+def test_a_zenoh_config_file_widens_nothing_unless_it_says_listen(net: Network, tmp_path: Path) -> None:
+    """ZENSIM_ZENOH_CONFIG_FILE (docs/multihost.md) for other settings keeps the loopback default; a file that
+    says `listen` itself is obeyed. Each service logs where it listens."""
+    quiet = tmp_path / "lease.json5"
+    quiet.write_text('{ transport: { link: { tx: { lease: 5000 } } } }\n')  # says nothing about listen
+    env = dict(env_without_network_settings(), ZENSIM_ZENOH_CONFIG_FILE=str(quiet))
+    router = NsProcess(net, "solo", [sys.executable, "-m", "zensim", "router"], env, tmp_path, name="router")
+    sim = None
+    try:
+        wait_for(lambda: "router up" in router.log() or not router.alive(), 30, "the router")
+        sim = NsProcess(net, "solo", [sys.executable, "-m", "zensim", "sim"], env, tmp_path, name="sim")
+        wait_for(lambda: "sim up" in sim.log() or not sim.alive(), 90, "the sim")
+        assert router.alive() and sim.alive(), router.log() + sim.log()
+        assert "listening on tcp/127.0.0.1:7447" in router.log(), router.log()
+        assert "zenoh peer: listening on tcp/127.0.0.1:0" in sim.log(), sim.log()
+        assert_nothing_exposed(router.pid)
+    finally:
+        for proc in (sim, router):
+            if proc is not None:
+                proc.stop()
+    wide = tmp_path / "wide.json5"
+    wide.write_text('{ listen: { endpoints: ["tcp/0.0.0.0:7448"] } }\n')
+    env = dict(env_without_network_settings(), ZENSIM_ZENOH_CONFIG_FILE=str(wide))
+    router = NsProcess(net, "solo", [sys.executable, "-m", "zensim", "router"], env, tmp_path, name="router-wide")
+    try:
+        wait_for(lambda: "router up" in router.log() or not router.alive(), 30, "the router")
+        assert ("0.0.0.0", 7448) in sockets(router.pid)["tcp_listen"], router.log()
+        assert "listening on tcp/0.0.0.0:7448" in router.log()
+    finally:
+        router.stop()

@@ -210,4 +210,4 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fail(PROG, f"cannot write {settings.output}: {exc.strerror}")
     with stream:
         # Secured network: the operator's credentials (read everything, query info/*).
-        return serve(PROG, settings, lambda session, s, stop: record(session, s, stop, stream), role="operator")
+        return serve(PROG, settings, lambda session, s, stop: record(session, s, stop, stream), role="recorder")

@@ -157,4 +157,4 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fail(PROG, str(exc))
     # Secured network: the sim's credentials, since a replay stands in for the sim (its state keys, info/*,
     # alive/sim); the bridge's state/targets and alive/replay are then not allowed and not seen.
-    return serve(PROG, settings, lambda session, s, stop: replay(session, s, stop, recording, robot_id), role="sim")
+    return serve(PROG, settings, lambda session, s, stop: replay(session, s, stop, recording, robot_id), role="replay")

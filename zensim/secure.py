@@ -2,6 +2,7 @@
 
     zensim secure init secrets --host sim-host.lan --host 192.168.1.20
     zensim up --secure-dir secrets           # router + services over TLS with roles
+    zensim secure init secrets --robots operator=a --robots viewer=a,b   # credentials scoped to robots
     # any Zenoh client: load secrets/operator.json5 (or viewer.json5) and add connect/endpoints
 
 The folder's layout and the roles are described in services/common/secure.py and docs/security.md.
@@ -14,7 +15,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from zensim.common.secure import DEFAULT_HOSTS, ROLES, SecureConfigError, init
+from zensim.common.secure import DEFAULT_HOSTS, SecureConfigError, init
+from zensim.schemas.topics import ROLE_NAMES
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -27,18 +29,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     make.add_argument("--listen", action="append", default=[],
                       help="the router's default tls/ listen endpoint (repeatable; default tls/127.0.0.1:7447)")
     make.add_argument("--days", type=int, default=825, help="certificate lifetime in days (default 825)")
+    make.add_argument("--robots", action="append", default=[], metavar="ROLE=ID[,ID...]",
+                      help="the robot ids a role's credential may act on (repeatable, e.g. operator=a; "
+                           "default: every robot)")
     args = parser.parse_args(list(argv) if argv is not None else None)
     listen = tuple(args.listen) or ("tls/127.0.0.1:7447",)
     bad = [e for e in listen if not e.startswith("tls/")]
     if bad:
         print(f"zensim secure: --listen takes tls/ endpoints, not {', '.join(bad)}", file=sys.stderr)
         return 2
+    robots: dict[str, tuple[str, ...]] = {}
+    for scope in args.robots:
+        name, _, ids = scope.partition("=")
+        robots[name.strip()] = tuple(i.strip() for i in ids.split(",") if i.strip())
+        if not robots[name.strip()]:
+            print(f"zensim secure: --robots takes ROLE=ID[,ID...], not {scope!r}", file=sys.stderr)
+            return 2
     try:
-        init(args.dir, tuple(args.host), listen, args.days)
+        init(args.dir, tuple(args.host), listen, args.days, robots)
     except SecureConfigError as exc:
         print(f"zensim secure: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {args.dir}: router.json5, users.txt, ca.pem and one config per role ({', '.join(ROLES)})")
+    print(f"wrote {args.dir}: router.json5, users.txt, ca.pem and one config per role ({', '.join(ROLE_NAMES)})")
     print(f"run:      zensim up --secure-dir {args.dir}")
     print(f"clients:  zenoh.Config.from_file('{args.dir}/operator.json5') + connect/endpoints "
           "[\"tls/<router host>:7447\"]")

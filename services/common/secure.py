@@ -4,8 +4,9 @@
 
     router.json5     the router: tls/ listener, mutual TLS, the password dictionary, the access rules
     users.txt        user:password lines the router checks (zenoh's usrpwd dictionary_file)
-    sim.json5, bridge.json5, viz.json5      each service's client config (its own user and certificate)
-    operator.json5, viewer.json5            ready-made client configs for people and tools
+    <role>.json5     one client config per role of the topic registry (schemas/topics.py ROLES): each
+                     service's own (sim, bridge, viz, unitree, ros1, recorder, replay) and ready-made
+                     ones for people and tools (operator, viewer); its user, password and certificate
     ca.pem           the CA certificate (to check the router's certificate by hand)
 
 Every client config is self-contained (certificates inline as base64), so any
@@ -21,14 +22,15 @@ import datetime
 import ipaddress
 import json
 import secrets
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Final
 
 import zenoh
 
-SERVICE_ROLES: Final = ("sim", "bridge", "viz")
-CLIENT_ROLES: Final = ("operator", "viewer")
-ROLES: Final = (*SERVICE_ROLES, *CLIENT_ROLES)
+from zensim.schemas.keys import ROOT, check_robot_id
+from zensim.schemas.topics import EVERY_ROLE_WATCHES, ROLE_NAMES, ROLES, Role
+
 DEFAULT_HOSTS: Final = ("localhost", "127.0.0.1", "::1", "router")
 """Names every router certificate carries: this machine, and compose's service name `router`."""
 USERS_FILE: Final = "users.txt"
@@ -40,70 +42,48 @@ class SecureConfigError(ValueError):
 
 
 # ------------------------------------------------------------------------------------- access rules
-def _rule(rule_id: str, flow: str, messages: list[str], keys: list[str]) -> dict:
-    return {"id": rule_id, "flows": [flow], "permission": "allow", "messages": messages,
-            "key_exprs": [f"zensim/*/{k}" for k in keys]}
-
-
-# What each role may send to the router (ingress) and be sent by it (egress). Everything else is
-# denied (default_permission deny). Declarations the router forwards (egress declare_*) are allowed to
-# every role so a publisher learns who listens; what is forwarded as data is restricted per role.
-ROLE_RULES: Final[dict[str, list[tuple[str, list[str], list[str]]]]] = {
-    "sim": [
-        ("ingress", ["put"], ["state/joints", "state/odom", "state/imu", "state/sim", "state/applied"]),
-        ("ingress", ["declare_queryable", "reply"], ["ctl/**", "info/**"]),
-        ("ingress", ["declare_subscriber"], ["cmd/motors"]),
-        ("ingress", ["liveliness_token"], ["alive/sim"]),
-        ("egress", ["put"], ["cmd/motors"]),
-        ("egress", ["query"], ["ctl/**", "info/**"]),
-    ],
-    "bridge": [
-        ("ingress", ["put"], ["cmd/motors", "state/targets", "report/bridge"]),
-        ("ingress", ["declare_subscriber"], ["state/**", "cmd/joints", "cmd/joint/*"]),
-        ("ingress", ["query"], ["info/**"]),
-        ("ingress", ["liveliness_token"], ["alive/bridge"]),
-        ("egress", ["put"], ["state/**", "cmd/joints", "cmd/joint/*"]),
-        ("egress", ["reply"], ["info/**"]),
-    ],
-    "viz": [
-        ("ingress", ["put"], ["cmd/joints"]),
-        ("ingress", ["declare_subscriber"], ["state/**", "cmd/motors"]),  # cmd/motors: the plot's targets
-        ("ingress", ["query"], ["info/**", "ctl/**"]),
-        ("ingress", ["liveliness_token"], ["alive/viz"]),
-        ("egress", ["put"], ["state/**", "cmd/motors"]),
-        ("egress", ["reply"], ["info/**", "ctl/**"]),
-    ],
-    "operator": [
-        ("ingress", ["put"], ["cmd/**"]),
-        ("ingress", ["declare_subscriber"], ["**"]),
-        ("ingress", ["query"], ["ctl/**", "info/**"]),
-        ("egress", ["put"], ["**"]),
-        ("egress", ["reply"], ["ctl/**", "info/**"]),
-    ],
-    "viewer": [
-        ("ingress", ["declare_subscriber"], ["state/**"]),
-        ("ingress", ["query"], ["info/**"]),
-        ("egress", ["put"], ["state/**"]),
-        ("egress", ["reply"], ["info/**"]),
-    ],
+# Zenoh's access-control messages for each way a role uses a key (topics.Role's fields): what the
+# role may send to the router (ingress), and what the router may send it (egress) so that it works.
+RULES_BY_USE: Final[dict[str, list[tuple[str, list[str]]]]] = {
+    "publishes": [("ingress", ["put"])],
+    "subscribes": [("ingress", ["declare_subscriber"]), ("egress", ["put"])],
+    "serves": [("ingress", ["declare_queryable", "reply"]), ("egress", ["query"])],
+    "queries": [("ingress", ["query"]), ("egress", ["reply"])],
+    "tokens": [("ingress", ["liveliness_token"])],
 }
 EVERY_ROLE_RULES: Final = [
-    ("ingress", ["declare_liveliness_subscriber", "liveliness_query"], ["alive/**"]),
-    ("egress", ["liveliness_token", "liveliness_query"], ["alive/**"]),
+    ("ingress", ["declare_liveliness_subscriber", "liveliness_query"], list(EVERY_ROLE_WATCHES)),
+    ("egress", ["liveliness_token", "liveliness_query"], list(EVERY_ROLE_WATCHES)),
+    # Declarations the router forwards: a publisher learns who listens. Data itself is filtered above.
     ("egress", ["declare_subscriber", "declare_queryable", "declare_liveliness_subscriber"], ["**"]),
 ]
+ALL_ROBOTS: Final = "*"
 
 
-def access_control() -> dict:
-    """Zenoh's `access_control` block: one subject per role (its user name and certificate name)."""
+def role_rules(role: Role) -> list[tuple[str, list[str], list[str]]]:
+    """(flow, messages, keys under `zensim/{robot}/`) the router allows `role`; everything else is denied."""
+    rules = [(flow, messages, list(getattr(role, use))) for use, pairs in RULES_BY_USE.items()
+             for flow, messages in pairs if getattr(role, use)]
+    return rules + EVERY_ROLE_RULES
+
+
+def access_control(robots: Mapping[str, Sequence[str]] | None = None) -> dict:
+    """Zenoh's `access_control` block: one subject per role (its user name and certificate name).
+
+    Args:
+        robots: role -> the robot ids its credential may act on; a role not named acts on every robot.
+    """
+    robots = robots or {}
     rules, subjects, policies = [], [], []
     for role in ROLES:
+        scope = [check_robot_id(r) for r in robots.get(role.name, ())] or [ALL_ROBOTS]
         ids = []
-        for n, (flow, messages, keys) in enumerate(ROLE_RULES[role] + EVERY_ROLE_RULES):
-            ids.append(f"{role}-{n}")
-            rules.append(_rule(ids[-1], flow, messages, keys))
-        subjects.append({"id": role, "usernames": [role], "cert_common_names": [cert_name(role)]})
-        policies.append({"id": role, "rules": ids, "subjects": [role]})
+        for n, (flow, messages, keys) in enumerate(role_rules(role)):
+            ids.append(f"{role.name}-{n}")
+            rules.append({"id": ids[-1], "flows": [flow], "permission": "allow", "messages": messages,
+                          "key_exprs": [f"{ROOT}/{robot}/{key}" for robot in scope for key in keys]})
+        subjects.append({"id": role.name, "usernames": [role.name], "cert_common_names": [cert_name(role.name)]})
+        policies.append({"id": role.name, "rules": ids, "subjects": [role.name]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
@@ -179,7 +159,7 @@ def _json5(header: str, config: dict) -> str:
 
 
 def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("tls/127.0.0.1:7447",),
-         days: int = CERT_DAYS) -> list[Path]:
+         days: int = CERT_DAYS, robots: Mapping[str, Sequence[str]] | None = None) -> list[Path]:
     """Make a CA, the router's certificate, one certificate and password per role, and the configs.
 
     The CA key is not kept: run `init` again (into a fresh folder) to change hosts or roles.
@@ -189,13 +169,22 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("
         hosts: extra DNS names or IP addresses the router is reached at (DEFAULT_HOSTS are always in).
         listen: the router's default tls/ listen endpoints (`--zenoh-listen` overrides them).
         days: certificate lifetime.
+        robots: role -> the robot ids its credential may act on (default: every robot).
 
     Returns:
         The files written.
 
     Raises:
-        SecureConfigError: `folder` is not empty.
+        SecureConfigError: `folder` is not empty, or `robots` names an unknown role or a bad robot id.
     """
+    for name, ids in (robots or {}).items():
+        if name not in ROLE_NAMES:
+            raise SecureConfigError(f"no role {name!r} to scope; roles: {', '.join(ROLE_NAMES)}")
+        for robot in ids:
+            try:
+                check_robot_id(robot)
+            except ValueError as exc:
+                raise SecureConfigError(str(exc)) from None
     if folder.exists() and any(folder.iterdir()):
         raise SecureConfigError(f"{folder} is not empty: choose a new folder")
     folder.mkdir(parents=True, exist_ok=True)
@@ -212,7 +201,7 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("
         written.append(folder / name)
 
     put("ca.pem", ca_pem.decode(), private=False)
-    passwords = {role: secrets.token_urlsafe(24) for role in ROLES}
+    passwords = {role: secrets.token_urlsafe(24) for role in ROLE_NAMES}
     put(USERS_FILE, "".join(f"{role}:{pw}\n" for role, pw in passwords.items()))
     router = {
         "mode": "router",
@@ -225,10 +214,10 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("
             # zensim sets the absolute path at start; zenohd needs it edited to where the file is.
             "auth": {"usrpwd": {"dictionary_file": USERS_FILE}},
         },
-        "access_control": access_control(),
+        "access_control": access_control(robots),
     }
     put("router.json5", _json5(f"zensim router, secured (hosts: {', '.join(all_hosts)}). Keep private.", router))
-    for role in ROLES:
+    for role in ROLE_NAMES:
         key = _new_key()
         pem = _cert(cert_name(role), key, "zensim CA", ca_key, days, client=True)
         client = {

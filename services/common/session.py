@@ -74,6 +74,10 @@ def zenoh_config(settings: ZenohSettings, role: str = "viewer", meet_here: bool 
         conf = zenoh.Config.from_file(settings.config_file) if settings.config_file else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
     connect, listen = list(settings.connect), list(settings.listen)
+    if settings.config_file and not listen and not says_listen(conf):
+        # A config file (for TLS, timeouts, a router's address...) that does not say `listen` itself must
+        # not turn the loopback default into zenoh's own, every interface: the same defaults as without one.
+        listen = {"peer": [LOOPBACK_ANY_PORT], "router": [LOCAL_MEETING_ENDPOINT]}.get(mode, [])
     if not settings.config_file and not settings.secure_dir:
         if mode == "peer" and not connect and not listen:
             listen, connect = ([LOCAL_MEETING_ENDPOINT], []) if meet_here else ([LOOPBACK_ANY_PORT], [LOCAL_MEETING_ENDPOINT])
@@ -98,6 +102,23 @@ def zenoh_config(settings: ZenohSettings, role: str = "viewer", meet_here: bool 
     for path, value in (extra or {}).items():
         conf.insert_json5(path, json.dumps(value))
     return conf
+
+
+def says_listen(conf: zenoh.Config) -> bool:
+    """Whether `conf` (read from a file) sets `listen/endpoints` itself, rather than keeping zenoh's defaults."""
+    return conf.get_json("listen/endpoints") != zenoh.Config().get_json("listen/endpoints")
+
+
+def endpoints(conf: zenoh.Config) -> str:
+    """What a session of `conf` listens on and connects to, in words for the start log."""
+    mode = json.loads(conf.get_json("mode"))
+    words = []
+    for what in ("listen", "connect"):
+        value = json.loads(conf.get_json(f"{what}/endpoints"))
+        if isinstance(value, dict):  # zenoh's per-mode default
+            value = value.get(mode, [])
+        words.append(f"{'listening on' if what == 'listen' else 'connecting to'} {', '.join(value) or 'nothing'}")
+    return f"zenoh {mode}: " + "; ".join(words)
 
 
 def _uses_meeting_point(settings: ZenohSettings) -> bool:
@@ -126,13 +147,17 @@ def open_session(settings: ZenohSettings, role: str = "viewer", claim_meeting_po
             names the setting.
     """
     if claim_meeting_point and _uses_meeting_point(settings):
+        config = _config(settings, role, True, extra)
         try:
-            session = _open(settings, _config(settings, role, True, extra))
-            logger.info("zenoh: listening on the local meeting point %s", LOCAL_MEETING_ENDPOINT)
+            session = _open(settings, config)
+            logger.info("%s (the local meeting point)", endpoints(config))
             return session
         except StartupError:
             logger.info("zenoh: %s is taken (a router or another service): joining it", LOCAL_MEETING_ENDPOINT)
-    return _open(settings, _config(settings, role, False, extra))
+    config = _config(settings, role, False, extra)
+    session = _open(settings, config)
+    logger.info("%s", endpoints(config))
+    return session
 
 
 def _config(settings: ZenohSettings, role: str, meet_here: bool, extra: Mapping[str, object] | None) -> zenoh.Config:

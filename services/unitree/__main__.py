@@ -22,9 +22,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ImportError as exc:
         return fail(PROG, f"cannot load Cyclone DDS ({exc}): install it with scripts/install-cyclonedds "
                           "(see docs/unitree.md)")
-    # The adapter does the bridge's job on the wire (puts cmd/motors, reads state/*): the bridge's
-    # role in a secured setup (docs/security.md).
-    return serve(PROG, settings, run, role="bridge")
+    # Its own role in a secured setup (schemas/topics.py ROLES, docs/security.md): cmd/motors like the
+    # bridge, and its own state/unitree and alive/unitree.
+    return serve(PROG, settings, run, role="unitree")
 
 
 if __name__ == "__main__":
