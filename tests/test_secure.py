@@ -196,3 +196,77 @@ def test_zensim_up_secured_runs_everything_and_operator_drives_through_the_bridg
             wait_for(lambda: "description of" in up.log(), 30, "the viz's description fetch")
     finally:
         up.stop(15)
+
+
+def test_zensim_up_unitree_secured_shows_the_adapter_to_an_operator(secrets_dir: Path, tmp_path: Path,
+                                                                    robot_id: str) -> None:
+    """The adapter runs with its own role: its alive/unitree token and state/unitree status reach an operator."""
+    from unitree_sdk import unused_domain_id
+    from zensim.schemas import UnitreeStatus
+
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_SIM_MODE="fixed", PYTHONUNBUFFERED="1",
+               ZENSIM_UNITREE_DOMAIN_ID=str(unused_domain_id()), ZENSIM_UNITREE_STATUS_RATE_HZ="5")
+    up = Service("up", ["--unitree", "--viz", "false", "--secure-dir", str(secrets_dir), "--router-endpoint", endpoint],
+                 env, tmp_path)
+    root = f"zensim/{robot_id}"
+    try:
+        conf = role_conf(secrets_dir, "operator", endpoint)
+        conf.insert_json5("connect/timeout_ms", "-1")
+        with zenoh.open(conf) as operator:
+            status = Latest(operator, f"{root}/state/unitree", UnitreeStatus)
+
+            def alive() -> set[str]:
+                replies = operator.liveliness().get(f"{root}/alive/*", timeout=1.0)
+                return {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
+
+            wait_for(lambda: alive() >= {"router", "sim", "unitree"} or not up.alive(), 90, "alive/unitree", 0.2)
+            assert up.alive(), up.log()
+            status.wait(timeout_s=30, what="state/unitree at the operator")
+    finally:
+        up.stop(15)
+
+
+def test_an_operator_scoped_to_robot_a_cannot_move_robot_b(tmp_path: Path) -> None:
+    """`zensim secure init --robots operator=a`: on one secured router with sims `a` and `b`, the operator
+    drives and reads `a`; its commands, control queries and subscriptions on `b` are refused by the router."""
+    folder = tmp_path / "scoped"
+    done = subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(folder), "--robots", "operator=a"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    env = dict(os.environ, ZENSIM_SECURE_DIR=str(folder), PYTHONUNBUFFERED="1")
+    router = Service("router", ["--zenoh-listen", endpoint], env, tmp_path)
+    sims = []
+    try:
+        wait_for(lambda: "router up" in router.log() or not router.alive(), 20, "the secured router")
+        for robot in ("a", "b"):
+            sims.append(Service("sim", ["--zenoh-connect", endpoint, "--mode", "fixed", "--robot-id", robot],
+                                env, tmp_path))
+        with zenoh.open(role_conf(folder, "operator", endpoint)) as operator, \
+                zenoh.open(role_conf(folder, "viewer", endpoint)) as viewer:
+            mine = Latest(operator, "zensim/a/state/sim", SimStatus)
+            theirs = Latest(operator, "zensim/b/state/sim", SimStatus)
+            b_seen_by_viewer = Latest(viewer, "zensim/b/state/sim", SimStatus)  # an unscoped role sees b
+            mine.wait(timeout_s=90, what="robot a's status at the operator")
+            b_seen_by_viewer.wait(timeout_s=90, what="robot b's status at a viewer")
+            motors = json.dumps({"names": ["left_elbow_joint"], "q": [0.3], "kp": [20.0], "kd": [1.0]})
+            for _ in range(20):
+                operator.put("zensim/b/cmd/motors", motors)
+                time.sleep(0.02)
+            assert list(operator.get("zensim/b/ctl/pause", payload="{}", timeout=2)) == []
+            before = b_seen_by_viewer.value.seq
+            seen = b_seen_by_viewer.wait(lambda s: s.seq > before + 5, what="b's fresh status")
+            assert seen.command_age_s is None and not seen.paused, seen
+            assert theirs.value is None  # b's states never reach an operator scoped to a
+            # The same operator drives robot a.
+            operator.put("zensim/a/cmd/motors", motors)
+            mine.wait(lambda s: s.command_age_s is not None, what="the command on robot a")
+            reply = json.loads(next(iter(operator.get("zensim/a/ctl/pause", payload="{}", timeout=10))).ok.payload.to_bytes())
+            assert reply["ok"], reply
+            mine.wait(lambda s: s.paused, what="robot a to pause")
+        assert all(sim.alive() for sim in sims) and router.alive()
+    finally:
+        for sim in sims:
+            sim.stop()
+        router.stop()
