@@ -149,3 +149,20 @@ def test_a_zenoh_config_file_widens_nothing_unless_it_says_listen(net: Network, 
         assert "listening on tcp/0.0.0.0:7448" in router.log()
     finally:
         router.stop()
+
+
+def test_compose_secure_covers_every_service_of_every_profile() -> None:
+    """Each service compose.yaml can start (any profile) is, under compose.secure.yaml, a tls/ client of the
+    router with only its own role's credentials (and the viewer's, for its healthcheck)."""
+    plain = yaml.safe_load((REPO / "compose.yaml").read_text())["services"]
+    secure = yaml.safe_load((REPO / "compose.secure.yaml").read_text())["services"]
+    assert set(plain) == set(secure), f"not secured: {sorted(set(plain) - set(secure))}"
+    for name, service in secure.items():
+        env = service["environment"]
+        assert env["ZENSIM_SECURE_DIR"] == "/run/zensim-secrets", name
+        endpoint = env["ZENSIM_ZENOH_LISTEN" if name == "router" else "ZENSIM_ZENOH_CONNECT"]
+        assert endpoint.startswith("tls/"), (name, endpoint)
+        mounted = {volume.split(":")[1].rsplit("/", 1)[-1] for volume in service["volumes"]}
+        own = {"router.json5", "users.txt"} if name == "router" else {f"{name}.json5"}
+        assert mounted == own | {"viewer.json5"}, (name, mounted)
+        assert all(volume.endswith(":ro") for volume in service["volumes"]), name

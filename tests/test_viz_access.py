@@ -8,6 +8,7 @@ import base64
 import os
 import re
 import socket
+import time
 from collections.abc import Callable
 
 import pytest
@@ -97,8 +98,7 @@ def test_browser_uses_the_printed_url_and_a_rebinding_name_gets_nothing(start_se
     start_service("sim", "--mode", "fixed")
     viz, port = start_viz(start_service, "--published-on", "0.0.0.0")
     url = wait_for(lambda: re.search(r"http://\S+/\?token=\S+", viz.log()), 10, "the token URL").group(0)
-    url = re.sub(r"http://[^/]+", f"http://127.0.0.1:{port}", url)  # printed with this machine's name
-    rules = "--host-resolver-rules=MAP attacker.test 127.0.0.1"
+    rules = "--host-resolver-rules=MAP attacker.test 127.0.0.1"  # the printed URL is used as printed
     with Browser(width=800, height=600, extra_flags=(rules,)) as browser:
         browser.goto(url)
         browser.wait("window.zensim && zensim.status && zensim.status.alive.includes('sim')", 60,
@@ -111,3 +111,63 @@ def test_browser_uses_the_printed_url_and_a_rebinding_name_gets_nothing(start_se
         browser.wait("document.readyState === 'complete'", 20)
         assert browser.eval("!window.zensim")
         assert "Forbidden" in browser.eval("document.body ? document.body.innerText : ''")
+
+
+def test_the_printed_url_names_a_host_the_allow_list_accepts() -> None:
+    """With --host 0.0.0.0 the URL names this machine (there is no address to print): that name is accepted."""
+    for bind, published_on in (("0.0.0.0", None), ("::", None), ("0.0.0.0", "0.0.0.0"), ("192.168.1.20", None),
+                               ("0.0.0.0", "10.0.0.5")):
+        guard = Guard(bind, published_on, (), None)
+        assert guard.token is not None
+        assert guard.host_ok(f"{guard.url_host}:7000"), (bind, published_on, guard.url_host)
+    assert Guard("0.0.0.0", None, (), None).url_host == socket.gethostname().lower().rstrip(".")
+    assert Guard("0.0.0.0", "10.0.0.5", (), None).url_host == "10.0.0.5"
+
+
+def test_the_token_reaches_no_log_and_refusals_are_logged_at_a_bounded_rate(
+        start_service: Callable[..., Service]) -> None:
+    viz, port = start_viz(start_service, "--published-on", "0.0.0.0", "--token", "s3cret-token")
+    wait_for(lambda: "s3cret-token" in viz.log(), 10, "the token URL")
+    before = len(viz.log().splitlines())
+    for _ in range(20):
+        assert request(port, "/?token=s3cret-token")[0] == 302
+    for _ in range(300):  # a curl loop with a guessed token
+        assert request(port, "/?token=guess-token")[0] == 403
+    assert request(port, "/static/viz.css?token=s3cret-token")[0] == 200
+    time.sleep(1.5)
+    assert request(port, "/?token=guess-token")[0] == 403  # after the quiet period: logged, with a count
+    log = viz.log()
+    assert log.count("s3cret-token") == 1, log  # only the start line's URL
+    assert "guess-token" not in log
+    new_lines = log.splitlines()[before:]
+    assert len(new_lines) < 40, f"{len(new_lines)} log lines for 321 requests:\n" + "\n".join(new_lines[:50])
+    assert any("more like it held back" in line for line in new_lines), new_lines
+
+
+def test_secured_viz_asks_its_token_on_loopback_too(tmp_path) -> None:
+    """With --secure-dir, a loopback page is no way around the network's credentials: it needs its token."""
+    import subprocess
+    import sys
+
+    folder = tmp_path / "secrets"
+    subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(folder)], check=True,
+                   capture_output=True, timeout=60)
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    port = free_port()
+    env = dict(os.environ, ZENSIM_SECURE_DIR=str(folder), PYTHONUNBUFFERED="1")
+    router = Service("router", ["--zenoh-listen", endpoint], env, tmp_path)
+    viz = None
+    try:
+        wait_for(lambda: "router up" in router.log() or not router.alive(), 20, "the secured router")
+        viz = Service("viz", ["--zenoh-connect", endpoint, "--port", str(port)], env, tmp_path)
+        url = wait_for(lambda: re.search(r"http://127\.0\.0\.1:\d+/\?token=(\S+)", viz.log()) or not viz.alive(),
+                       60, "the token URL")
+        assert viz.alive(), viz.log()
+        assert "the network is secured" in viz.log()
+        assert request(port)[0] == 403
+        assert request(port, "/ws", websocket=True, headers={"Origin": f"http://127.0.0.1:{port}"})[0] == 403
+        assert request(port, f"/?token={url.group(1)}")[0] == 302
+    finally:
+        if viz is not None:
+            viz.stop()
+        router.stop()

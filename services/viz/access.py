@@ -7,8 +7,10 @@ itself, so an Origin check alone lets it open our websocket. Its requests still 
 serve on, names the user lists, and IP literals (a rebinding page always uses a DNS name).
 
 Token: when the page is reachable beyond loopback (bound to another address, or published there by
-Docker, `published_on`), every request needs the token, given once as `?token=...` (the URL printed
-at start, like Jupyter) and then kept in an HttpOnly, SameSite=Strict cookie.
+Docker, `published_on`), or the network is secured (`--secure-dir`: then any local process could
+otherwise drive the robot through the page with none of the network's credentials), every request
+needs the token, given once as `?token=...` (the URL printed at start, like Jupyter) and then kept in
+an HttpOnly, SameSite=Strict cookie.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import hmac
 import ipaddress
 import secrets
+import socket
 from typing import Final
 
 LOOPBACK_NAMES: Final = frozenset({"localhost", "127.0.0.1", "::1"})
@@ -57,18 +60,26 @@ class Guard:
         published_on: where the page is reachable from outside if not `bind` (compose: ZENSIM_BIND).
         allowed_hosts: extra Host names to accept (`*` accepts any).
         token: the access token; None makes one when a token is needed.
+        always_token: need the token even on loopback (the secured mode).
     """
 
-    def __init__(self, bind: str, published_on: str | None, allowed_hosts: tuple[str, ...], token: str | None) -> None:
+    def __init__(self, bind: str, published_on: str | None, allowed_hosts: tuple[str, ...], token: str | None,
+                 always_token: bool = False) -> None:
         self.allowed = set(LOOPBACK_NAMES) | {h.lower() for h in allowed_hosts}
         for address in (bind, published_on or ""):
             if address not in WILDCARDS:
                 self.allowed.add(host_name(address))
+        # The name the printed URL uses: the address served on, or for a wildcard this machine's name,
+        # which is then accepted too (a rebinding page cannot use our own host name).
+        self.url_host = (published_on if published_on and published_on not in WILDCARDS else
+                         bind if bind not in WILDCARDS else host_name(socket.gethostname()))
+        self.allowed.add(host_name(self.url_host))
         self.any_host = "*" in self.allowed
         # Inside a container the page binds every interface but Docker may publish it on loopback only:
         # then the published address is what others can reach.
         reachable_on = published_on or bind
-        self.token: str | None = None if is_loopback(reachable_on) else (token or secrets.token_urlsafe(24))
+        needed = always_token or not is_loopback(reachable_on)
+        self.token: str | None = (token or secrets.token_urlsafe(24)) if needed else None
         self.cookie_name = "zensim_viz_token"
         """Set per port once bound: cookies are shared by every port of a host."""
         self.refused = 0

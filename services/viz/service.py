@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import logging
-import socket
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -63,7 +62,7 @@ from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, INFO_CAP_BYTES, STATE_C
 
 from . import panel, plots, scene
 from .settings import VizSettings
-from .access import WILDCARDS, Guard
+from .access import Guard
 from .web import Client, Hub, make_app
 
 logger = logging.getLogger(__name__)
@@ -380,6 +379,11 @@ def _bounded_texts(fields: dict[str, Any]) -> dict[str, Any]:
     return {name: bounded(value) if isinstance(value, str) else value for name, value in fields.items()}
 
 
+def url_authority(host: str, port: int) -> str:
+    """`host:port` as a URL writes it (an IPv6 address in brackets)."""
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+
 def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) -> int:
     """Serve the page until `stop` is set; returns the exit code."""
     service = VizService(session, settings, stop)
@@ -390,16 +394,18 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
         raise StartupError(f"cannot serve the page on {settings.host}:{settings.port} "
                            f"(--host / ZENSIM_VIZ_HOST, --port / ZENSIM_VIZ_PORT): {exc.strerror or exc}") from None
     port = sockets[0].getsockname()[1]
-    guard = Guard(settings.host, settings.published_on, settings.allowed_hosts, settings.token)
+    guard = Guard(settings.host, settings.published_on, settings.allowed_hosts, settings.token,
+                  always_token=bool(settings.zenoh.secure_dir))
     guard.cookie_name = f"zensim_viz_token_{port}"
     server = tornado.httpserver.HTTPServer(make_app(service.hub, guard))
     server.add_sockets(sockets)
     logger.info("viz up: http://%s:%d/", settings.host, port)
     if guard.token is not None:
-        # Once, like Jupyter: whoever can read this log can open the page.
-        shown = settings.host if settings.host not in WILDCARDS else socket.gethostname()
-        logger.info("the page is reachable beyond loopback: open it with its token: http://%s:%d/?token=%s",
-                    shown, port, guard.token)
+        # Once, like Jupyter: whoever can read this log can open the page. No other line carries the token
+        # (requests are logged without their query, web.py log_request).
+        why = "the network is secured" if settings.zenoh.secure_dir else "the page is reachable beyond loopback"
+        logger.info("%s: open the page with its token: http://%s/?token=%s", why,
+                    url_authority(guard.url_host, port), guard.token)
     fetcher = threading.Thread(target=service.fetch_loop, name="viz-description", daemon=True)
     fetcher.start()
     tornado.ioloop.PeriodicCallback(service.tick, 1000.0 / settings.rate_hz).start()

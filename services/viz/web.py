@@ -40,6 +40,8 @@ from .access import Guard
 
 logger = logging.getLogger(__name__)
 refusals = RateLimitedLog(logger)
+access_log = logging.getLogger("zensim.viz.access")
+refused_requests = RateLimitedLog(access_log)
 
 KIND_COMMAND = 1
 KIND_FRAME = 2
@@ -274,6 +276,19 @@ class IndexPage(Guarded):
         self.write((STATIC_DIR / "index.html").read_bytes())
 
 
+def log_request(handler: tornado.web.RequestHandler) -> None:
+    """The access log (replaces tornado's): the path without its query, so `?token=` never reaches a log;
+    served requests at debug level, failed ones at a bounded rate (a curl loop must not flood the log)."""
+    status = handler.get_status()
+    request = handler.request
+    line = "%d %s %s from %s (%.1f ms)"
+    args = (status, request.method, request.path[:100], request.remote_ip, 1000.0 * request.request_time())
+    if status < 400:
+        access_log.debug(line, *args)
+    else:
+        refused_requests.warning(line, *args)
+
+
 def make_app(hub: Hub, guard: Guard) -> tornado.web.Application:
     """The tornado application: `/`, `/static/*`, `/meshcat/main.min.js`, `/ws`, each behind `guard`."""
     return tornado.web.Application(
@@ -284,6 +299,7 @@ def make_app(hub: Hub, guard: Guard) -> tornado.web.Application:
             (r"/static/(.*)", NoCacheStatic, {"path": str(STATIC_DIR)}),
             (r"/ws", VizSocket, {"hub": hub}),
         ],
+        log_function=log_request,
         websocket_max_message_size=MAX_CLIENT_MESSAGE_BYTES,
         websocket_ping_interval=5,
         websocket_ping_timeout=15,
