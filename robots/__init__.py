@@ -70,10 +70,9 @@ def robot_files(robot: str | None = None, urdf: str | Path | None = None, contro
     if not urdf_path.is_file():
         raise FileNotFoundError(f"URDF not found: {urdf_path}")
     if control is not None:
-        control_path: Path | None = Path(control).expanduser().resolve()
-        if not control_path.is_file():
-            raise FileNotFoundError(f"control file not found: {control_path}")
-    else:
-        candidates = ([folder / CONTROL_FILE] if folder is not None else []) + [urdf_path.parent / CONTROL_FILE]
-        control_path = next((c for c in candidates if c.is_file()), None)
-    return RobotFiles(urdf=urdf_path, control=control_path)
+        given = Path(control).expanduser().resolve()
+        if not given.is_file():
+            raise FileNotFoundError(f"control file not found: {given}")
+        return RobotFiles(urdf=urdf_path, control=given)
+    candidates = ([folder / CONTROL_FILE] if folder is not None else []) + [urdf_path.parent / CONTROL_FILE]
+    return RobotFiles(urdf=urdf_path, control=next((c for c in candidates if c.is_file()), None))

@@ -12,7 +12,8 @@ from __future__ import annotations
 import fnmatch
 import logging
 from pathlib import Path
-from typing import Annotated, Literal
+from collections.abc import Sequence
+from typing import Annotated, Literal, TypeVar
 
 import msgspec
 
@@ -30,7 +31,7 @@ class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
     """Base for every table in control.toml: a typo is an error, not a silently ignored key."""
 
 
-class JointGains(_Strict):
+class JointGains(_Strict, frozen=True):
     """PD gains for the joints matching `joints` (Unitree LowCmd kp/kd)."""
 
     joints: list[str]
@@ -41,7 +42,7 @@ class JointGains(_Strict):
     """Damping, N m s/rad."""
 
 
-class JointValue(_Strict):
+class JointValue(_Strict, frozen=True):
     """A scalar for the joints matching `joints` (armature)."""
 
     joints: list[str]
@@ -50,7 +51,7 @@ class JointValue(_Strict):
     """The value, in the unit of the table that holds it."""
 
 
-class ModeConfig(_Strict):
+class ModeConfig(_Strict, frozen=True):
     """Settings of one mode: floating (free base on the floor) or fixed (base welded in the air)."""
 
     base_height_m: Positive | None = None
@@ -61,7 +62,7 @@ class ModeConfig(_Strict):
     """PD gains per joint group; first match wins. Unmatched joints get gains from their effort limit."""
 
 
-class ModelConfig(_Strict):
+class ModelConfig(_Strict, frozen=True):
     """Simulation settings that complete the URDF into a MuJoCo model."""
 
     base_link: str | None = None
@@ -134,7 +135,10 @@ def load_control(path: Path | None) -> ControlConfig:
         raise ControlConfigError(f"{path}: {exc}") from exc
 
 
-def first_match(name: str, patterns_in_order: list[tuple[list[str], object]]) -> object | None:
+V = TypeVar("V")
+
+
+def first_match(name: str, patterns_in_order: Sequence[tuple[Sequence[str], V]]) -> V | None:
     """Return the value of the first group whose patterns match `name`, or None."""
     for patterns, value in patterns_in_order:
         if any(fnmatch.fnmatchcase(name, p) for p in patterns):

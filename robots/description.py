@@ -193,10 +193,11 @@ def _joint(j: yourdfpy.Joint) -> Joint:
 
 
 def _rgba(color: yourdfpy.Color) -> tuple[float, float, float, float]:
-    rgba = tuple(float(c) for c in color.rgba)
-    if len(rgba) != 4:
-        raise RobotModelError(f"a colour needs 4 numbers (rgba), got {len(rgba)}")
-    return rgba  # type: ignore[return-value]
+    values = [float(c) for c in color.rgba]
+    if len(values) != 4:
+        raise RobotModelError(f"a colour needs 4 numbers (rgba), got {len(values)}")
+    rgba = (values[0], values[1], values[2], values[3])
+    return rgba
 
 
 def _visual(v: yourdfpy.Visual, materials: dict[str, tuple[float, float, float, float]]) -> Visual:

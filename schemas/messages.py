@@ -73,7 +73,7 @@ def _check_unique(field: str, names: tuple[str, ...] | None) -> None:
 # --- state: sim -> anyone -------------------------------------------------
 
 
-class JointState(Message, tag="joint_state", kw_only=True):
+class JointState(Message, frozen=True, tag="joint_state", kw_only=True):
     """Measured joint positions, velocities and torques at one sim instant."""
 
     sim_time_s: float
@@ -88,7 +88,7 @@ class JointState(Message, tag="joint_state", kw_only=True):
     """Actuator torques applied in the last step, N m."""
 
 
-class Odometry(Message, tag="odometry", kw_only=True):
+class Odometry(Message, frozen=True, tag="odometry", kw_only=True):
     """Ground-truth pose and twist of the base link (the pelvis frame, not its centre of mass)."""
 
     sim_time_s: float
@@ -105,7 +105,7 @@ class Odometry(Message, tag="odometry", kw_only=True):
     """Base angular velocity in the base frame, rad/s."""
 
 
-class Imu(Message, tag="imu", kw_only=True):
+class Imu(Message, frozen=True, tag="imu", kw_only=True):
     """What the robot's IMU measures (site `imu_in_pelvis` on the G1)."""
 
     sim_time_s: float
@@ -120,7 +120,7 @@ class Imu(Message, tag="imu", kw_only=True):
     """Specific force in the IMU frame (reads +9.81 on z at rest), m/s^2."""
 
 
-class SimStatus(Message, tag="sim_status", kw_only=True):
+class SimStatus(Message, frozen=True, tag="sim_status", kw_only=True):
     """The sim's health, about 10 times a second."""
 
     sim_time_s: float
@@ -179,7 +179,7 @@ class SimStatus(Message, tag="sim_status", kw_only=True):
 # --- commands -------------------------------------------------------------
 
 
-class MotorCommand(Message, tag="motor_command", kw_only=True):
+class MotorCommand(Message, frozen=True, tag="motor_command", kw_only=True):
     """Motor targets with Unitree LowCmd semantics, applied at every physics step.
 
     tau = kp * (q - q_meas) + kd * (dq - dq_meas) + tau_ff. Without `names`
@@ -213,7 +213,7 @@ class MotorCommand(Message, tag="motor_command", kw_only=True):
         _check_non_negative("kd", self.kd)
 
 
-class JointTargets(Message, tag="joint_targets", kw_only=True):
+class JointTargets(Message, frozen=True, tag="joint_targets", kw_only=True):
     """Position targets for some joints (sliders, scripts); the bridge holds the rest."""
 
     names: tuple[str, ...]
@@ -231,7 +231,7 @@ class JointTargets(Message, tag="joint_targets", kw_only=True):
         _check_finite("dq", self.dq)
 
 
-class BridgeReport(Message, tag="bridge_report", kw_only=True):
+class BridgeReport(Message, frozen=True, tag="bridge_report", kw_only=True):
     """The bridge's verdict on one input it rejected or changed (clamped)."""
 
     key: str
@@ -256,7 +256,7 @@ class BridgeReport(Message, tag="bridge_report", kw_only=True):
 # not know is refused for the same reason: the sim could not honour it.
 
 
-class ResetRequest(Message, tag="reset_request", kw_only=True, forbid_unknown_fields=True):
+class ResetRequest(Message, frozen=True, tag="reset_request", kw_only=True, forbid_unknown_fields=True):
     """Reset the robot. Everything is optional: an empty request resets to the default pose."""
 
     q: Vector | None = None
@@ -279,15 +279,15 @@ class ResetRequest(Message, tag="reset_request", kw_only=True, forbid_unknown_fi
             _check_finite("base_height_m", (self.base_height_m,))
 
 
-class PauseRequest(Message, tag="pause_request", kw_only=True, forbid_unknown_fields=True):
+class PauseRequest(Message, frozen=True, tag="pause_request", kw_only=True, forbid_unknown_fields=True):
     """Stop stepping the physics; states keep being published."""
 
 
-class ResumeRequest(Message, tag="resume_request", kw_only=True, forbid_unknown_fields=True):
+class ResumeRequest(Message, frozen=True, tag="resume_request", kw_only=True, forbid_unknown_fields=True):
     """Start stepping again after a pause."""
 
 
-class StepRequest(Message, tag="step_request", kw_only=True, forbid_unknown_fields=True):
+class StepRequest(Message, frozen=True, tag="step_request", kw_only=True, forbid_unknown_fields=True):
     """Advance a paused sim by `n` steps; the reply comes after they ran."""
 
     n: int = 1
@@ -298,14 +298,14 @@ class StepRequest(Message, tag="step_request", kw_only=True, forbid_unknown_fiel
             raise ValueError(f"`n` must be in 1..{MAX_STEPS_PER_REQUEST}, got {self.n}")
 
 
-class ModeRequest(Message, tag="mode_request", kw_only=True, forbid_unknown_fields=True):
+class ModeRequest(Message, frozen=True, tag="mode_request", kw_only=True, forbid_unknown_fields=True):
     """Switch between floating and fixed base; rebuilds the model and resets."""
 
     mode: Mode
     """The new mode."""
 
 
-class CtlReply(Message, tag="ctl_reply", kw_only=True):
+class CtlReply(Message, frozen=True, tag="ctl_reply", kw_only=True):
     """The answer to every ctl request."""
 
     ok: bool
@@ -327,7 +327,7 @@ class CtlReply(Message, tag="ctl_reply", kw_only=True):
 # --- description -----------------------------------------------------------
 
 
-class Gains(Message, tag="gains", kw_only=True):
+class Gains(Message, frozen=True, tag="gains", kw_only=True):
     """Per-joint PD gains in canonical order."""
 
     kp: Vector
@@ -336,7 +336,7 @@ class Gains(Message, tag="gains", kw_only=True):
     """Velocity gains, N m s/rad."""
 
 
-class KeyInfo(Message, tag="key_info", kw_only=True):
+class KeyInfo(Message, frozen=True, tag="key_info", kw_only=True):
     """One row of the protocol table."""
 
     key: str
@@ -353,7 +353,7 @@ class KeyInfo(Message, tag="key_info", kw_only=True):
     """Nominal rate or `on demand`."""
 
 
-class RobotInfo(Message, tag="robot_info", kw_only=True):
+class RobotInfo(Message, frozen=True, tag="robot_info", kw_only=True):
     """Everything a client needs to talk to this robot, served on info/robot."""
 
     robot: str
@@ -417,7 +417,7 @@ class RobotInfo(Message, tag="robot_info", kw_only=True):
 # --- lockstep (clock = lockstep) ---------------------------------------------
 
 
-class AppliedCommand(Message, tag="applied_command", kw_only=True):
+class AppliedCommand(Message, frozen=True, tag="applied_command", kw_only=True):
     """A motor command the lockstep sim advanced on: what it applied, from when, for how long.
 
     Published right after the states it led to, so a recording holds every
@@ -435,7 +435,7 @@ class AppliedCommand(Message, tag="applied_command", kw_only=True):
     """The command as received (before clamping, which the sim repeats deterministically)."""
 
 
-class AdvanceReply(Message, tag="advance_reply", kw_only=True):
+class AdvanceReply(Message, frozen=True, tag="advance_reply", kw_only=True):
     """The answer to ctl/advance: the states of the new instant, all three together."""
 
     ok: bool
@@ -457,7 +457,7 @@ class AdvanceReply(Message, tag="advance_reply", kw_only=True):
 # --- edge adapters ------------------------------------------------------------
 
 
-class UnitreeStatus(Message, tag="unitree_status", kw_only=True):
+class UnitreeStatus(Message, frozen=True, tag="unitree_status", kw_only=True):
     """Health of `zensim unitree`, the Unitree DDS adapter (rt/lowcmd, rt/lowstate), a few times a second."""
 
     seq: int

@@ -16,7 +16,7 @@ so a topic or role added here without the docs fails CI.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Final, Literal
+from typing import Final, Generic, Literal, TypeVar
 
 from .messages import (
     AdvanceReply,
@@ -41,11 +41,12 @@ from .messages import (
 )
 
 Kind = Literal["publication", "queryable", "liveliness"]
+M = TypeVar("M", bound=Message)
 RoleKind = Literal["service", "client"]
 
 
 @dataclass(frozen=True)
-class Topic:
+class Topic(Generic[M]):
     """One key of the protocol.
 
     Args:
@@ -68,7 +69,7 @@ class Topic:
     writer: str
     reader: str
     rate: str
-    message: type[Message] | None = None
+    message: type[M] | None = None
     reply: type[Message] | None = None
     payload: str = ""
     note: str = ""
@@ -78,6 +79,12 @@ class Topic:
     def pattern(self) -> str:
         """The key under `zensim/{robot}/` as a key expression: each placeholder made the wildcard."""
         return "/".join(self.wildcard if chunk.startswith("{") else chunk for chunk in self.key.split("/"))
+
+    def message_type(self) -> type[M]:
+        """The Struct on the wire; ValueError for a topic that carries none (a bare number, bytes, a token)."""
+        if self.message is None:
+            raise ValueError(f"{self.key} carries no message struct ({self.payload})")
+        return self.message
 
     def wire_name(self) -> str:
         """The message as `RobotInfo.keys` names it: struct tags (`reset_request -> ctl_reply`) or the payload."""
@@ -120,7 +127,7 @@ MOTORS: Final = Topic("cmd/motors", "publication", "bridge, unitree, or any clie
                       "any; latest wins at each physics step", MotorCommand, name="motors")
 JOINT_TARGETS: Final = Topic("cmd/joints", "publication", "sliders, any client", "bridge", "any; latest wins",
                              JointTargets, name="joint_targets")
-JOINT_TARGET: Final = Topic("cmd/joint/{joint}", "publication", "any client", "bridge", "any; latest wins",
+JOINT_TARGET: Final[Topic[Message]] = Topic("cmd/joint/{joint}", "publication", "any client", "bridge", "any; latest wins",
                             payload="float", note="(a bare number: JSON/text or msgpack)", name="joint_target_any")
 BRIDGE_REPORT: Final = Topic("report/bridge", "publication", "bridge", "anyone", "one per rejected or clamped input",
                              BridgeReport, name="bridge_report")
@@ -139,10 +146,10 @@ APPLIED: Final = Topic("state/applied", "publication", "sim", "anyone (the recor
 # --- description ------------------------------------------------------------------
 ROBOT_INFO: Final = Topic("info/robot", "queryable", "sim", "anyone", "on demand", RobotInfo,
                           note="(JSON for `?format=json` or a JSON query payload)", name="robot_info")
-URDF: Final = Topic("info/urdf", "queryable", "sim", "anyone", "on demand", payload="URDF text (application/xml)", name="urdf")
-MESH: Final = Topic("info/mesh/{path}", "queryable", "sim", "anyone", "on demand",
+URDF: Final[Topic[Message]] = Topic("info/urdf", "queryable", "sim", "anyone", "on demand", payload="URDF text (application/xml)", name="urdf")
+MESH: Final[Topic[Message]] = Topic("info/mesh/{path}", "queryable", "sim", "anyone", "on demand",
                     payload="mesh bytes (application/octet-stream)", name="mesh_any", wildcard="**")
-ALIVE: Final = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree", "anyone",
+ALIVE: Final[Topic[Message]] = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree", "anyone",
                      "while running", payload="token", name="alive_any")
 
 TOPICS: Final[tuple[Topic, ...]] = (
@@ -262,7 +269,7 @@ def covered_topics(pattern: str, kind: Kind) -> list[Topic]:
     return [t for t in TOPICS if t.kind == kind and intersects(pattern, t.pattern())]
 
 
-def _roles_on(topic: Topic, field: str) -> tuple[str, ...]:
+def _roles_on(topic: Topic[Message], field: str) -> tuple[str, ...]:
     return tuple(r.name for r in ROLES if any(intersects(p, topic.pattern()) for p in getattr(r, field)))
 
 

@@ -27,7 +27,7 @@ import zenoh
 from zensim.common.entry import fail, serve
 from zensim.common.logs import RateLimitedLog, setup_logging
 from zensim.common.settings import CommonSettings, settings_or_exit
-from zensim.common.wire import payload_of, read_payload
+from zensim.common.wire import error_text, payload_of, read_payload
 from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, SimStatus, decode_scalar
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES
 
@@ -112,7 +112,7 @@ class Recorder:
         for reply in self.session.get(key, timeout=2.0):
             if reply.ok is not None:
                 return read_payload(reply.ok, DESCRIPTION_CAP_BYTES)[0]
-            raise ValueError(reply.err.payload.to_string()[:200])
+            raise ValueError(error_text(reply.err))
         raise TimeoutError(f"no reply on {key}")
 
     def drain(self, timeout_s: float) -> None:

@@ -206,7 +206,7 @@ def resim_realtime(sim: Simulation, recording: Recording) -> Divergence:
         if n > 0:
             sim.step(n)
             result.sim_time_s = sim.sim_time_s
-            result.add(sim, message, pending_odom.get(t))
+            result.add(sim, message if isinstance(message, JointState) else None, pending_odom.get(t))
     return result
 
 

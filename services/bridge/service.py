@@ -66,8 +66,8 @@ class Bridge:
         self.adopt(model)
         self._rejected_total = 0
         self._clamped_total = 0
-        self._targets_codec = Codec(topics.JOINT_TARGETS.message)
-        self._status_codec = Codec(topics.SIM_STATUS.message)
+        self._targets_codec = Codec(topics.JOINT_TARGETS.message_type())
+        self._status_codec = Codec(topics.SIM_STATUS.message_type())
         self._reject_log = RateLimitedLog(logger, 1.0)
         self._clamp_log = RateLimitedLog(logger, 1.0)
         self._status_log = RateLimitedLog(logger, 5.0)
@@ -193,6 +193,7 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
         The process exit code.
     """
     keys = Keys(settings.robot_id)
+    model: RobotModel | None
     if settings.robot or settings.urdf:
         try:
             model = RobotModel.from_files(settings.robot, settings.urdf, settings.control)

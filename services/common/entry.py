@@ -32,7 +32,8 @@ CLOSE_TIMEOUT_S = 1.0
 
 
 class HasZenoh(Protocol):
-    zenoh: ZenohSettings
+    @property
+    def zenoh(self) -> ZenohSettings: ...  # read-only: the settings are frozen structs
 
 
 S = TypeVar("S", bound=HasZenoh)

@@ -194,12 +194,12 @@ def _open(settings: ZenohSettings, config: zenoh.Config) -> zenoh.Session:
     finally:
         connecting.clear()
     if "error" in outcome:
-        where = []
+        given = []
         if settings.listen:
-            where.append(f"listen {', '.join(settings.listen)} (--zenoh-listen / ZENSIM_ZENOH_LISTEN)")
+            given.append(f"listen {', '.join(settings.listen)} (--zenoh-listen / ZENSIM_ZENOH_LISTEN)")
         if settings.connect:
-            where.append(f"connect {', '.join(settings.connect)} (--zenoh-connect / ZENSIM_ZENOH_CONNECT)")
-        raise StartupError(f"cannot open the zenoh session ({'; '.join(where) or 'zenoh defaults'}): "
+            given.append(f"connect {', '.join(settings.connect)} (--zenoh-connect / ZENSIM_ZENOH_CONNECT)")
+        raise StartupError(f"cannot open the zenoh session ({'; '.join(given) or 'zenoh defaults'}): "
                            f"{_first_line(outcome['error'])}") from None
     return outcome["session"]  # type: ignore[return-value]
 

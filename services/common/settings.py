@@ -146,7 +146,7 @@ def _fields_with_env(cls: type[msgspec.Struct]) -> list[tuple[str, tuple[str, ..
     """(flat name, path, type, help, variable, first-release variable or None) for every leaf field."""
     prefix = getattr(cls, "env_prefix", "")
     had_first_release = getattr(cls, "first_release_names", True)
-    out = []
+    out: list[tuple[str, tuple[str, ...], Any, str, str, str | None]] = []
     for name, path, typ, doc in _flat_fields(cls):
         plain = ENV_PREFIX + name.upper()
         if path[0] in SHARED_FIELDS or name in SHARED_NAMES or not prefix:
@@ -163,7 +163,7 @@ def _flat_fields(cls: type[msgspec.Struct], prefix: str = "") -> list[tuple[str,
     for field in msgspec.structs.fields(cls):
         path = (field.name,)
         if isinstance(field.type, type) and issubclass(field.type, msgspec.Struct):
-            keep = getattr(field.type, "unprefixed", frozenset())
+            keep: frozenset[str] = getattr(field.type, "unprefixed", frozenset())
             for name, sub_path, typ, doc in _flat_fields(field.type, f"{prefix}{field.name}_"):
                 flat.append((sub_path[-1] if sub_path[-1] in keep else name, path + sub_path, typ, doc))
         else:

@@ -21,6 +21,7 @@ from zensim.schemas.codec import Format
 from .logs import RateLimitedLog
 
 M = TypeVar("M", bound=Message)
+N = TypeVar("N", bound=Message)
 
 WILDCARD_CHARS = ("*", "$")
 """Characters that make a key expression match more than one key."""
@@ -56,8 +57,10 @@ def decode_input(sample: zenoh.Sample | zenoh.Query, codec: Codec[M], max_bytes:
     return codec.decode(*read_payload(sample, max_bytes))
 
 
-def error_text(reply_error: zenoh.ReplyError) -> str:
-    """The text of an error reply, bounded and safe whatever bytes it holds."""
+def error_text(reply_error: zenoh.ReplyError | None) -> str:
+    """The text of an error reply (`reply.err`), bounded and safe whatever bytes it holds."""
+    if reply_error is None:
+        return ""
     payload = reply_error.payload
     return bounded(payload.to_bytes()[:4096].decode("utf-8", errors="replace") if payload is not None else "")
 
@@ -102,20 +105,20 @@ class TypedPublisher(Generic[M]):
     `TypedPublisher.of(session, keys, topics.JOINTS)` takes the key and the type from the registry.
     """
 
-    @classmethod
-    def of(cls, session: zenoh.Session, keys: Keys, topic: Topic, fmt: Format = "msgpack",
-           priority: zenoh.Priority | None = None) -> TypedPublisher:
+    @staticmethod
+    def of(session: zenoh.Session, keys: Keys, topic: Topic[N], fmt: Format = "msgpack",
+           priority: zenoh.Priority | None = None) -> TypedPublisher[N]:
         """The publisher of a topic of the registry (schemas/topics.py) for one robot."""
-        assert topic.message is not None, f"{topic.key} carries no message struct"
-        return cls(session, keys.of(topic), topic.message, fmt, priority)
+        return TypedPublisher(session, keys.of(topic), topic.message_type(), fmt, priority)
 
     def __init__(self, session: zenoh.Session, key: str, message_type: type[M], fmt: Format = "msgpack",
                  priority: zenoh.Priority | None = None) -> None:
         self.key = key
         self._codec = Codec(message_type)
         self._fmt = fmt
-        options = {} if priority is None else {"priority": priority}
-        self._publisher = session.declare_publisher(key, encoding=zenoh.Encoding(encoding_of(fmt)), **options)
+        encoding = zenoh.Encoding(encoding_of(fmt))
+        self._publisher = (session.declare_publisher(key, encoding=encoding) if priority is None else
+                           session.declare_publisher(key, encoding=encoding, priority=priority))
 
     def put(self, message: M) -> None:
         self._publisher.put(self._codec.encode(message, self._fmt))

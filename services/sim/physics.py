@@ -318,9 +318,10 @@ class Simulation:
         return self._targets
 
     def _safe_targets(self) -> MotorTargets:
-        if getattr(self, "_safe", None) is None or self._safe[0] is not self.robot:
-            self._safe = (self.robot, MotorTargets.hold(self.robot, self.robot.default_q))
-        return self._safe[1]
+        safe = getattr(self, "_safe", None)
+        if safe is None or safe[0] is not self.robot:
+            safe = self._safe = (self.robot, MotorTargets.hold(self.robot, self.robot.default_q))
+        return safe[1]
 
     # --- stepping --------------------------------------------------------
 

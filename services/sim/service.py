@@ -30,6 +30,7 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 from pathlib import Path
 
 import msgspec
@@ -58,12 +59,14 @@ from zensim.schemas import (
     is_json,
 )
 from zensim.schemas.bounds import vector_cap_bytes
-from zensim.schemas.messages import Message
+from zensim.schemas.codec import Format
+from zensim.schemas.messages import Message, Mode
 
 from .physics import CommandError, Limits, Simulation
 from .settings import SimSettings
 
 logger = logging.getLogger("zensim.sim")
+R = TypeVar("R", bound=Message)
 
 REQUEST_TIMEOUT_S = 60.0
 """Longest a control request waits for the loop (a 100000-step ctl/step takes a few s)."""
@@ -105,7 +108,7 @@ class SimService:
         self.jobs: queue.Queue[Job] = queue.Queue()
         self.command_refusals = Refusals(logger, "command")
         self.request_refusals = Refusals(logger, "request")
-        self.command_codec = Codec(topics.MOTORS.message)
+        self.command_codec = Codec(topics.MOTORS.message_type())
         self.reply_codec = Codec(CtlReply)
         self.info_codec = Codec(RobotInfo)
         self.input_cap_bytes = vector_cap_bytes(sim.robot.joint_names)
@@ -114,7 +117,7 @@ class SimService:
         self.seq = 0
         self.status_seq = 0
         self._fallen_since: float | None = None
-        self._robots_by_mode: dict[str, Robot] = {}
+        self._robots_by_mode: dict[Mode, Robot] = {}
         self._refresh_info()
 
         keys = self.keys
@@ -152,9 +155,10 @@ class SimService:
         """Re-render info/robot (after a mode switch); figures of the other mode come from a cached build."""
         sim = self.sim
         self._robots_by_mode[sim.mode] = sim.robot
-        for mode in ("floating", "fixed"):
+        modes: tuple[Mode, ...] = ("floating", "fixed")
+        for mode in modes:
             if mode not in self._robots_by_mode:
-                self._robots_by_mode[mode] = build(sim.files, mode)  # type: ignore[arg-type]
+                self._robots_by_mode[mode] = build(sim.files, mode)
         info = sim.robot_info(self.keys, self.settings.state_rate_hz, self.settings.status_rate_hz, self._robots_by_mode)
         self._info = msgspec.structs.replace(
             info, run_id=self.run_id, clock=self.settings.clock,
@@ -165,7 +169,7 @@ class SimService:
     # `?format=json`, or by sending any JSON payload, as the reply format of every query here).
 
     def _on_info(self, query: zenoh.Query) -> None:
-        fmt = "json" if _wants_json(query) or self._payload_is_json(query) else "msgpack"
+        fmt: Format = "json" if _wants_json(query) or self._payload_is_json(query) else "msgpack"
         info = msgspec.structs.replace(self._info, episode=self.episode())
         reply(query, self.keys.robot_info, info, fmt, self.info_codec)
 
@@ -231,14 +235,14 @@ class SimService:
 
     # --- control requests -----------------------------------------------
 
-    def _ctl(self, verb: str, request_type: type[Message], handler: Callable[[Message], CtlReply]) -> Callable[[zenoh.Query], None]:
+    def _ctl(self, verb: str, request_type: type[R], handler: Callable[[R], CtlReply]) -> Callable[[zenoh.Query], None]:
         """The callback of one ctl queryable: exactly one reply per query, whatever it carries."""
         codec = Codec(request_type)
         own_key = self.keys.ctl(verb)
 
         def on_query(query: zenoh.Query) -> None:
             # Answer in the request's own format; a bare `z_get` with no payload gets JSON.
-            fmt = "json" if query.payload is None or self._payload_is_json(query) else "msgpack"
+            fmt: Format = "json" if query.payload is None or self._payload_is_json(query) else "msgpack"
             if str(query.key_expr) != own_key:
                 # `z_get zensim/g1/**` reaches every queryable: a control acts only when named.
                 error = self.request_refusals.refuse(query.key_expr, f"ctl/{verb} acts only on a query for exactly "

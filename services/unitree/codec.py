@@ -101,7 +101,7 @@ def decode_low_cmd(data: bytes) -> LowCmd:
     clean = np.zeros((), LOW_CMD_C)
     for name in ("mode_pr", "mode_machine", "reserve", "crc"):
         clean[name] = raw[name]
-    for name in MOTOR_CMD_C.names:
+    for name in MOTOR_CMD_C.names or ():
         clean["motor_cmd"][name] = raw["motor_cmd"][name]
     crc = int(clean["crc"])
     return LowCmd(

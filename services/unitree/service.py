@@ -74,7 +74,7 @@ class Counters:
         self.lowstate_published = 0
         self.motion_switcher_requests = 0
         self.sim_time_s = 0.0
-        self.last_command = None  # monotonic time of the newest forwarded LowCmd_
+        self.last_command: float | None = None  # monotonic time of the newest forwarded LowCmd_
         self.last_error: str | None = None
 
 

@@ -112,7 +112,8 @@ class VizService:
         self._fetch_wanted = threading.Event()
         self._last_drawn = (-1, -1, -1)
 
-        self._codecs = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus, RobotInfo, CtlReply, MotorCommand)}
+        # Any: each callback knows which type its codec gives (the key says it).
+        self._codecs: dict[type, Codec[Any]] = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus, RobotInfo, CtlReply, MotorCommand)}
         self.plot_feed = plots.PlotFeed()
         self.plot_subs: dict[Client, plots.Subscription] = {}
         self.cmd_publisher = TypedPublisher.of(session, self.keys, topics.JOINT_TARGETS)
@@ -411,7 +412,11 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
     tornado.ioloop.PeriodicCallback(service.tick, 1000.0 / settings.rate_hz).start()
     tornado.ioloop.PeriodicCallback(service.publish_status, STATUS_PERIOD_S * 1000).start()
     tornado.ioloop.PeriodicCallback(service.publish_plots, PLOT_PERIOD_S * 1000).start()
-    tornado.ioloop.PeriodicCallback(lambda: stop.is_set() and service.loop.stop(), 50).start()
+    def stop_when_asked() -> None:
+        if stop.is_set():
+            service.loop.stop()
+
+    tornado.ioloop.PeriodicCallback(stop_when_asked, 50).start()
     try:
         service.loop.start()
     finally:
