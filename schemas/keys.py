@@ -67,7 +67,8 @@ class Keys:
         self.robot = check_robot_id(robot)
         self.root = f"{ROOT}/{robot}"
         for topic in TOPICS:
-            setattr(self, topic.name, f"{self.root}/{topic.pattern()}")
+            if topic.name:
+                setattr(self, topic.name, f"{self.root}/{topic.pattern()}")
         self.everything = f"{self.root}/**"
 
     def of(self, topic: Topic) -> str:
@@ -118,9 +119,9 @@ class Keys:
 
 
 _KEY_NAMES = {name for name, kind in Keys.__annotations__.items() if kind == "str"}
-if _KEY_NAMES != {t.name for t in TOPICS}:
-    raise RuntimeError(f"Keys' attributes and the topic registry's names differ: "
-                       f"{sorted(_KEY_NAMES ^ {t.name for t in TOPICS})}")
+if _KEY_NAMES != {t.name for t in TOPICS if t.name}:
+    raise RuntimeError(f"Keys' attributes and the topic registry's names differ (a named topic needs its "
+                       f"annotation in Keys): {sorted(_KEY_NAMES ^ {t.name for t in TOPICS if t.name})}")
 
 
 def mesh_key_path(filename: str) -> str:

@@ -60,7 +60,8 @@ class Topic(Generic[M]):
         payload: what travels when it is not a Struct (`float`, `URDF text (application/xml)`).
         note: a few words the docs add after the message name.
         name: the attribute of `Keys` that holds this topic's key expression (a placeholder becomes a
-            wildcard: `cmd/joint/{joint}` -> `joint_target_any` = `.../cmd/joint/*`).
+            wildcard: `cmd/joint/{joint}` -> `joint_target_any` = `.../cmd/joint/*`); empty: no
+            attribute (use `Keys.of(topic)`).
         wildcard: what a placeholder becomes in that key expression: `*` (one chunk) or `**` (a path).
     """
 
