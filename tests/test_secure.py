@@ -18,6 +18,7 @@ import zenoh
 from support import Latest, Service, free_port, wait_for
 from zensim.router import ACL_AUDIT_LOG
 from zensim.schemas import JointState, SimStatus
+from zensim.schemas.topics import ROLE_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +71,7 @@ def secured(secrets_dir: Path, tmp_path: Path, robot_id: str) -> Iterator[tuple[
 
 def test_init_writes_self_contained_role_configs(secrets_dir: Path) -> None:
     names = {p.name for p in secrets_dir.iterdir()}
-    assert {"router.json5", "users.txt", "ca.pem", "sim.json5", "bridge.json5", "viz.json5",
-            "operator.json5", "viewer.json5"} <= names
+    assert {"router.json5", "users.txt", "ca.pem"} | {f"{role}.json5" for role in ROLE_NAMES} <= names
     for role in ("operator", "viewer"):
         text = (secrets_dir / f"{role}.json5").read_text()
         assert str(secrets_dir) not in text  # no paths: the file works when copied to another machine
@@ -80,6 +80,15 @@ def test_init_writes_self_contained_role_configs(secrets_dir: Path) -> None:
     again = subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(secrets_dir)],
                            capture_output=True, text=True, timeout=60)
     assert again.returncode == 2 and "not empty" in again.stderr
+
+
+@pytest.mark.parametrize("scope, says", [("nobody=a", "no role 'nobody'"), ("operator=BAD", "must match"),
+                                         ("operator", "ROLE=ID")])
+def test_init_refuses_a_bad_robot_scope_and_writes_nothing(tmp_path: Path, scope: str, says: str) -> None:
+    done = subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(tmp_path / "s"), "--robots", scope],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and says in done.stderr, done.stderr
+    assert not (tmp_path / "s").exists()
 
 
 def test_router_refuses_plain_tcp_wrong_password_and_foreign_certificates(
