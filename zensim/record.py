@@ -209,5 +209,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         return fail(PROG, f"cannot write {settings.output}: {exc.strerror}")
     with stream:
-        # Secured network: the operator's credentials (read everything, query info/*).
+        # Secured network: the recorder's own role (subscribe everything, query info/robot and info/urdf).
         return serve(PROG, settings, lambda session, s, stop: record(session, s, stop, stream), role="recorder")

@@ -155,6 +155,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         robot_id = check_robot_id(settings.robot_id or recording.robot_id)
     except (OSError, ValueError) as exc:
         return fail(PROG, str(exc))
-    # Secured network: the sim's credentials, since a replay stands in for the sim (its state keys, info/*,
-    # alive/sim); the bridge's state/targets and alive/replay are then not allowed and not seen.
+    # Secured network: the replay's own role, which stands in for a sim: it publishes state/*, serves
+    # info/robot and info/urdf, and declares alive/sim and alive/replay (schemas/topics.py ROLES).
     return serve(PROG, settings, lambda session, s, stop: replay(session, s, stop, recording, robot_id), role="replay")
