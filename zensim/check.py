@@ -25,7 +25,7 @@ class CheckSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """Service whose liveliness token to look for (sim, bridge, viz, router, unitree)."""
     robot_id: str = "g1"
     """Robot id."""
-    timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 5.0
+    timeout_s: Annotated[float, msgspec.Meta(ge=0.1, le=3600)] = 5.0
     """Give up after this long."""
     zenoh: ZenohSettings = ZenohSettings()
     """Zenoh settings."""

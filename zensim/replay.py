@@ -25,7 +25,7 @@ import zenoh
 from zensim.common.claim import current_owner, taken_message
 from zensim.common.entry import fail, serve
 from zensim.common.logs import setup_logging
-from zensim.common.settings import CommonSettings, settings_or_exit
+from zensim.common.settings import CommonSettings, settings_or_exit, zero_or_at_least
 from zensim.common.wire import TypedPublisher, reply
 from zensim.schemas import Keys, Message, check_robot_id
 
@@ -49,6 +49,9 @@ class ReplaySettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     """The MCAP file to replay (the first argument)."""
     rate: Annotated[float, msgspec.Meta(ge=0, le=1000)] = 1.0
     """Playback speed: 1 is the recorded pace, 2 twice as fast, 0 as fast as possible."""
+
+    def __post_init__(self) -> None:
+        zero_or_at_least(self.rate, 0.001, "rate")
 
 
 def leading_file_argument(argv: Sequence[str], flag: str = "--file") -> list[str]:

@@ -63,7 +63,7 @@ class ResimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """Largest accepted kp, as the recording sim had it, N m/rad."""
     max_kd: Annotated[float, msgspec.Meta(gt=0, le=1e5)] = 500.0
     """Largest accepted kd, as the recording sim had it, N m s/rad."""
-    budget_s: Annotated[float, msgspec.Meta(gt=0, le=86_400)] = 600.0
+    budget_s: Annotated[float, msgspec.Meta(ge=1, le=86_400)] = 600.0
     """Wall-clock seconds the re-simulation may take; past it, resim stops and says so (exit code 1)."""
 
 

@@ -41,7 +41,7 @@ from zensim.common.logs import setup_logging
 from zensim.common.entry import fail, serve
 from zensim.common.secure import SecureConfigError
 from zensim.common.session import zenoh_config
-from zensim.common.settings import CommonSettings, ZenohSettings, settings_or_exit
+from zensim.common.settings import CommonSettings, ZenohSettings, settings_or_exit, zero_or_at_least
 from zensim.schemas import ROOT, Keys
 
 logger = logging.getLogger("zensim.router")
@@ -67,6 +67,9 @@ class RouterSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     """Connections that may be mid-handshake at once (zenoh's default 100 let ~100 silent ones lock everyone out)."""
     accept_timeout_ms: Annotated[int, msgspec.Meta(ge=100, le=60_000)] = 1000
     """A connection that has not finished the zenoh handshake by then is closed (zenoh's default: 10 s)."""
+
+    def __post_init__(self) -> None:
+        zero_or_at_least(self.cmd_rate_limit_hz, 1.0, "cmd_rate_limit_hz")
 
 
 def handshake_limits(settings: RouterSettings) -> dict[str, object]:
