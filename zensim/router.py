@@ -5,8 +5,7 @@ opened with mode `router` routes for every peer and client that connects.
 It declares the liveliness token `zensim/{robot}/alive/router`.
 
 It also guards the input keys: per client link, how fast samples may be put
-on `zensim/*/cmd/**`, and how large a payload on those keys and on
-`zensim/*/ctl/**` queries may be. Zenoh's own downsampling and low-pass
+on `zensim/*/cmd/**`, and how large a payload on those keys may be. Zenoh's own downsampling and low-pass
 filter do it, in Rust, before a flooding client's excess costs the sim a
 single Python instruction. The size limit is on by default. The rate limit is
 off by default: per link, one client's flood never eats another client's
@@ -62,7 +61,7 @@ class RouterSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     cmd_rate_limit_hz: Annotated[float, msgspec.Meta(ge=0, le=1_000_000)] = 0.0
     """Per client link, most samples per second on zensim/*/cmd/**; 0: no limit. Zenoh drops a sample that comes sooner than 1/rate after the last one, so set it well above your controllers' rate."""
     input_size_limit_bytes: Annotated[int, msgspec.Meta(ge=0)] = 65536
-    """Largest payload a client may put on zensim/*/cmd/** or send with a zensim/*/ctl/** query; 0: no limit."""
+    """Largest payload a client may put on zensim/*/cmd/**; 0: no limit. (ctl/** queries are capped by the sim, which answers an oversize one with an error: a query dropped here would get no reply at all.)"""
     accept_pending: Annotated[int, msgspec.Meta(ge=16, le=65536)] = 4096
     """Connections that may be mid-handshake at once (zenoh's default 100 let ~100 silent ones lock everyone out)."""
     accept_timeout_ms: Annotated[int, msgspec.Meta(ge=100, le=60_000)] = 1000
@@ -100,14 +99,14 @@ def input_limits(settings: RouterSettings) -> dict[str, object]:
 
     Zenoh's `downsampling` keeps at most `freq` samples per second per link and rule; its
     `low_pass_filter` drops payloads over `size_limit`. Both run in the router, in Rust. Queries
-    are not rate-limited: a query the router drops gets no reply at all, and every ctl query
-    must get exactly one (the sim answers bad ones itself, cheaply, off the physics thread).
+    are neither rate- nor size-limited here: a query the router drops gets no reply at all, and every
+    ctl query must get exactly one (the sim checks the size before decoding and answers an oversize or
+    bad one itself, cheaply, off the physics thread).
     """
     config: dict[str, object] = {}
-    inputs = [f"{ROOT}/*/cmd/**", f"{ROOT}/*/ctl/**"]
     if settings.input_size_limit_bytes:
-        config["low_pass_filter"] = [{"id": "zensim-inputs", "flows": ["ingress"], "messages": ["put", "query"],
-                                      "key_exprs": inputs, "size_limit": settings.input_size_limit_bytes}]
+        config["low_pass_filter"] = [{"id": "zensim-inputs", "flows": ["ingress"], "messages": ["put"],
+                                      "key_exprs": [f"{ROOT}/*/cmd/**"], "size_limit": settings.input_size_limit_bytes}]
     rules = []
     if settings.cmd_rate_limit_hz:
         rules.append({"id": "zensim-cmd", "flows": ["ingress"], "messages": ["put", "delete"],
