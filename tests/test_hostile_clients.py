@@ -420,3 +420,17 @@ class TestBoundsWithoutLimits:
             sim.accept_command(MotorCommand(q=(0.1,), tau=(1e11,)))
         with pytest.raises(CommandError, match="dq"):
             sim.accept_command(MotorCommand(q=(0.1,), dq=(1e300,), kd=(500.0,)))
+
+
+def test_an_oversize_ctl_query_through_the_router_gets_an_error_reply(start_service, zsession, robot_id) -> None:
+    """Issue 18: the router used to drop ctl queries over its size limit, and a dropped query gets no reply
+    at all; the README says every ctl query gets one. The sim answers, refusing before it decodes."""
+    keys = sim_keys(robot_id)
+    start_service("sim", "--mode", "fixed")
+    wait_alive(zsession, keys)
+    for size in (30_000, 200_000):  # over the sim's cap; over the router's 64 KiB put limit too
+        payload = json.dumps({"q": [0.0] * 10, "pad": "x" * size})
+        replies = list(zsession.get(keys.ctl("reset"), payload=payload, timeout=10))
+        assert len(replies) == 1 and replies[0].ok is not None, f"{size} bytes: no reply"
+        reply = json.loads(replies[0].ok.payload.to_bytes())
+        assert reply["ok"] is False and "cap" in reply["error"], reply

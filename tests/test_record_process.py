@@ -183,7 +183,7 @@ class TestReplay:
         record_lockstep_run(start_service, zsession, robot_id, path, n=10)
         replay = start_service("replay", str(path))
         assert replay.proc.wait(20) == 2
-        assert "a live sim already serves" in replay.log()
+        assert "already served by a live sim" in replay.log()
 
     def test_replay_drives_the_viewer(self, start_service, zsession, robot_id, tmp_path, browser) -> None:
         path = tmp_path / "run.mcap"

@@ -109,3 +109,31 @@ class TestPerServiceNames:
                 if name in seen:
                     assert name in COMMON_NAMES, f"{name} read by {seen[name].__name__} and {cls.__name__}"
                 seen[name] = cls
+
+
+@pytest.mark.parametrize("cls, argv", [
+    (SimSettings, ["--state-rate-hz", "1e-300"]),
+    (SimSettings, ["--status-rate-hz", "1e-300"]),
+    (SimSettings, ["--rtf", "1e-300"]),
+    (SimSettings, ["--timestep-s", "1e-300"]),
+    (SimSettings, ["--watchdog-timeout-s", "1e-300"]),
+    (BridgeSettings, ["--targets-rate-hz", "1e-300"]),
+    (BridgeSettings, ["--info-timeout-s", "1e-300"]),
+    (VizSettings, ["--rate-hz", "1e-300"]),
+    (UnitreeSettings, ["--status-rate-hz", "1e-300"]),
+    (RouterSettings, ["--cmd-rate-limit-hz", "1e-300"]),
+    (CheckSettings, ["--timeout-s", "1e-300"]),
+])
+def test_rates_and_timeouts_below_a_sane_floor_are_refused(cls: type, argv: list[str]) -> None:
+    """A tiny positive rate passed a `> 0` check and a service never published again (issue 18)."""
+    with pytest.raises(SettingsError) as info:
+        load_settings(cls, argv, env={})
+    assert argv[0] in str(info.value), str(info.value)
+
+
+@pytest.mark.parametrize("cls, argv", [
+    (SimSettings, ["--rtf", "0"]), (BridgeSettings, ["--targets-rate-hz", "0"]),
+    (RouterSettings, ["--cmd-rate-limit-hz", "0"]),
+])
+def test_zero_still_means_off_or_unbounded(cls: type, argv: list[str]) -> None:
+    load_settings(cls, argv, env={})

@@ -25,7 +25,7 @@ class CheckSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """Service whose liveliness token to look for (sim, bridge, viz, router, unitree)."""
     robot_id: str = "g1"
     """Robot id."""
-    timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 5.0
+    timeout_s: Annotated[float, msgspec.Meta(ge=0.1, le=3600)] = 5.0
     """Give up after this long."""
     zenoh: ZenohSettings = ZenohSettings()
     """Zenoh settings."""
@@ -47,11 +47,12 @@ def is_alive(session, key: str, timeout_s: float) -> bool:
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(CheckSettings, argv, "zensim check")
     key = Keys(settings.robot_id).alive(settings.service)
-    try:
-        session = open_session(settings.zenoh, claim_meeting_point=False)
+    started = time.monotonic()
+    try:  # the whole check, the session's open included, keeps to --timeout-s
+        session = open_session(settings.zenoh, claim_meeting_point=False, timeout_s=settings.timeout_s)
     except StartupError as exc:
         return fail("zensim check", str(exc))
     with session:
-        alive = is_alive(session, key, settings.timeout_s)
+        alive = is_alive(session, key, max(0.1, settings.timeout_s - (time.monotonic() - started)))
     print(f"{key}: {'alive' if alive else 'not seen'}")
     return 0 if alive else 1

@@ -17,6 +17,7 @@ No zenoh here: `zensim resim` reads files without a network.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -55,6 +56,38 @@ def message_type_of(relative_key: str) -> type[Message] | type[float] | None:
         if len(pattern) == len(parts) and all(p == k or p.startswith("{") for p, k in zip(pattern, parts)):
             return float if topic.payload == "float" else topic.message
     return None
+
+
+def non_finite_at(message: object) -> str | None:
+    """Where a message holds NaN or an infinity (`q[3]`), or None: JSON cannot carry those (msgspec would
+    write `null`, which the channel's schema refuses), so such a sample is not recorded."""
+    return _non_finite_at(msgspec.to_builtins(message), "")
+
+
+def _non_finite_at(value: Any, where: str) -> str | None:
+    if isinstance(value, float):
+        return None if math.isfinite(value) else (where or "the value")
+    if isinstance(value, dict):
+        items: Any = value.items()
+    elif isinstance(value, (list, tuple)):
+        items = ((f"[{i}]", v) for i, v in enumerate(value))
+    else:
+        return None
+    for name, item in items:
+        found = _non_finite_at(item, f"{where}{name}" if name.startswith("[") else f"{where}.{name}".lstrip("."))
+        if found is not None:
+            return found
+    return None
+
+
+def _refuse_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def strict_json(data: bytes | str) -> bytes:
+    """Re-encode JSON compactly, refusing NaN and Infinity (Python's json reads and writes them; strict
+    readers do not). Raises ValueError (or RecursionError for absurd nesting)."""
+    return json.dumps(json.loads(data, parse_constant=_refuse_constant), allow_nan=False).encode()
 
 
 def split_key(key: str) -> tuple[str, str]:
@@ -103,6 +136,12 @@ class RecordingWriter:
             self._channels[key] = channel
         return channel
 
+    def has_channel(self, key: str) -> bool:
+        return key in self._channels
+
+    def channel_count(self) -> int:
+        return len(self._channels)
+
     def write(self, key: str, message_type: type | None, json_data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
         self._sequence += 1
         self._writer.add_message(self._channel(key, message_type), log_time=log_time_ns, data=json_data,
@@ -135,6 +174,8 @@ class Recording:
     robot_info: RobotInfo | None
     urdf: str | None
     messages: list[Recorded]
+    unreadable: int = 0
+    """Messages skipped because they do not decode as their key's type (a damaged or forged file)."""
 
     def of(self, relative_key: str) -> list[Any]:
         """The messages of one key (`state/joints`), in log-time order."""
@@ -159,24 +200,42 @@ def read_recording(path: str | Path) -> Recording:
                    for _schema, channel, message in reader.iter_messages(log_time_order=True)]
         except Exception as exc:  # the mcap package raises its own and struct/zstd errors for a bad file
             raise ValueError(f"{path}: not a readable MCAP file: {exc}") from None
-    if METADATA_NAME not in metadata:
+    zensim_metadata = metadata.get(METADATA_NAME)
+    if zensim_metadata is None:
         raise ValueError(f"{path}: no zensim metadata; was it written by `zensim record`?")
-    robot_id = metadata[METADATA_NAME]["robot_id"]
-    info = None
-    if ROBOT_INFO_ATTACHMENT in attachments:
-        info = msgspec.json.decode(attachments[ROBOT_INFO_ATTACHMENT], type=RobotInfo)
-    urdf = attachments[URDF_ATTACHMENT].decode() if URDF_ATTACHMENT in attachments else None
-    messages = []
+    robot_id = zensim_metadata.get("robot_id")
+    if not robot_id:
+        raise ValueError(f"{path}: the zensim metadata names no robot_id")
+    try:
+        info = None
+        if ROBOT_INFO_ATTACHMENT in attachments:
+            info = msgspec.json.decode(attachments[ROBOT_INFO_ATTACHMENT], type=RobotInfo)
+        urdf = attachments[URDF_ATTACHMENT].decode() if URDF_ATTACHMENT in attachments else None
+    except (msgspec.MsgspecError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
+        raise ValueError(f"{path}: its description (info/robot, info/urdf attachments) is unreadable: "
+                         f"{str(exc)[:200]}") from None
+    messages, unreadable = [], 0
     for topic, log_time, data in raw:
-        _, relative = split_key(topic)
-        message_type = message_type_of(relative)
-        if message_type is float:
-            message: Any = float(json.loads(data)["value"])
-        elif message_type is None:
-            message = json.loads(data)
-        else:
-            codec = codecs.setdefault(message_type, Codec(message_type))
-            message = codec.decode(data, "application/json")
-        messages.append(Recorded(topic, relative, log_time, message))
-    return Recording(robot_id, info, urdf, messages)
+        try:
+            message = _decode(topic, data, codecs)
+        except (msgspec.MsgspecError, ValueError, TypeError, KeyError, RecursionError):
+            unreadable += 1  # a recording is untrusted input: one bad message is skipped, not fatal
+            continue
+        messages.append(Recorded(topic, split_key(topic)[1], log_time, message))
+    return Recording(robot_id, info, urdf, messages, unreadable)
+
+
+def _decode(topic: str, data: bytes, codecs: dict[type, Codec]) -> Any:
+    """One recorded message as its key's type; raises on anything that is not."""
+    _, relative = split_key(topic)
+    message_type = message_type_of(relative)
+    if message_type is float:
+        value = json.loads(data)["value"]
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+            raise ValueError("not a finite number")
+        return float(value)
+    if message_type is None:
+        return json.loads(data)
+    codec = codecs.setdefault(message_type, Codec(message_type))
+    return codec.decode(data, "application/json")
 

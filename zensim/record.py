@@ -6,8 +6,11 @@ Writes: the file (see zensim/mcapfile.py for the layout); nothing on the network
 Zenoh's callback only stamps the receive time and queues the raw bytes; the main thread decodes,
 re-encodes as JSON and writes, so a slow disk never pushes back on the network. The description
 (RobotInfo, URDF) is fetched on a helper thread until the sim answers, and saved as attachments.
-Ctrl-C or SIGTERM (or `--duration-s`) ends the recording with a complete, indexed file. A sample
-that does not decode as its key's message is not written: it is counted and logged (rate-limited).
+Ctrl-C or SIGTERM (or `--duration-s`, or `--max-bytes` of JSON written) ends the recording with a
+complete, indexed file. A sample that does not decode as its key's message, or that holds a number
+JSON cannot spell (NaN, Infinity: strict readers such as Foxglove refuse the file), is not written:
+it is counted and logged (rate-limited). Keys are client-chosen, so channels are bounded in count
+and key length: a flood of invented keys cannot grow the file's index without bound.
 """
 
 from __future__ import annotations
@@ -29,15 +32,20 @@ from zensim.common.logs import RateLimitedLog, setup_logging
 from zensim.common.settings import CommonSettings, settings_or_exit
 from zensim.common.wire import error_text, payload_of, read_payload
 from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, SimStatus, decode_scalar
-from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, STATE_CAP_BYTES
 
-from .mcapfile import ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter, message_type_of, split_key
+from .mcapfile import (ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter, message_type_of, non_finite_at,
+                       split_key, strict_json)
 
 logger = logging.getLogger("zensim.record")
 
 PROG = "zensim record"
-MAX_SAMPLE_BYTES = 4 * 1024 * 1024
-"""Larger samples are not recorded (counted): no zensim message comes near this."""
+MAX_SAMPLE_BYTES = STATE_CAP_BYTES
+"""Larger samples are not recorded (counted): no zensim publication comes near this."""
+MAX_CHANNELS = 1000
+"""Distinct keys recorded; samples on keys past this are not recorded (counted). zensim has ~20 per robot."""
+MAX_KEY_CHARS = 256
+"""Longest key recorded: a key is a channel name, written into every chunk index."""
 MAX_QUEUED = 20_000
 """Samples waiting for the writer; past this the newest are dropped and counted, memory stays bounded."""
 INFO_RETRY_S = 1.0
@@ -50,8 +58,10 @@ class RecordSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     env_prefix: ClassVar[str] = "RECORD"
     output: str = "zensim.mcap"
     """MCAP file to write (-o)."""
-    duration_s: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    duration_s: Annotated[float, msgspec.Meta(ge=0, le=1e7)] = 0.0
     """Stop after this many wall seconds; 0 records until Ctrl-C or SIGTERM."""
+    max_bytes: Annotated[int, msgspec.Meta(ge=0, le=2**50)] = 2 * 1024**3
+    """Stop (with a complete file and a message saying so) once this much JSON is written; 0: no bound."""
 
 
 class Recorder:
@@ -138,16 +148,24 @@ class Recorder:
         try:
             if len(data) > MAX_SAMPLE_BYTES:
                 raise DecodeError(f"{len(data)} bytes, more than {MAX_SAMPLE_BYTES}")
+            if not self.writer.has_channel(key):
+                if len(key) > MAX_KEY_CHARS:
+                    raise DecodeError(f"a key of {len(key)} characters, more than {MAX_KEY_CHARS}")
+                if self.writer.channel_count() >= MAX_CHANNELS:
+                    raise DecodeError(f"already {MAX_CHANNELS} keys recorded")
             _, relative = split_key(key)
             message_type = message_type_of(relative)
             publish_ns = received_ns
             if message_type is float:
                 json_data = json.dumps({"value": decode_scalar(data, encoding)}).encode()
             elif message_type is None:
-                json_data = json.dumps(json.loads(data)).encode()  # unknown key: kept only if it is JSON
+                json_data = strict_json(data)  # unknown key: kept only if it is JSON with finite numbers
             else:
                 codec = self._codecs.setdefault(message_type, Codec(message_type))
                 message = codec.decode(data, encoding)
+                where = non_finite_at(message)
+                if where is not None:
+                    raise DecodeError(f"{where} is not a finite number (JSON has no NaN or Infinity)")
                 json_data = codec.encode(message, "json")
                 if isinstance(message, SimStatus):
                     self._watch_sim(message)
@@ -181,6 +199,10 @@ def record(session: zenoh.Session, settings: RecordSettings, stop: threading.Eve
             recorder.drain(0.05)
             now = time.monotonic()
             if settings.duration_s and now - started >= settings.duration_s:
+                break
+            if settings.max_bytes and recorder.bytes_written >= settings.max_bytes:
+                logger.warning("stopped at --max-bytes %d: %.2f MB of JSON written; start another recording to go on",
+                               settings.max_bytes, recorder.bytes_written / 1e6)
                 break
             if progress and now >= next_progress:
                 next_progress = now + PROGRESS_PERIOD_S

@@ -22,9 +22,10 @@ from typing import Annotated, ClassVar
 import msgspec
 import zenoh
 
+from zensim.common.claim import current_owner, taken_message
 from zensim.common.entry import fail, serve
 from zensim.common.logs import setup_logging
-from zensim.common.settings import CommonSettings, settings_or_exit
+from zensim.common.settings import CommonSettings, settings_or_exit, zero_or_at_least
 from zensim.common.wire import TypedPublisher, reply
 from zensim.schemas import Keys, Message, check_robot_id
 
@@ -34,7 +35,8 @@ logger = logging.getLogger("zensim.replay")
 
 PROG = "zensim replay"
 REPLAYED_PREFIX = "state/"
-LIVE_SIM_CHECK_S = 1.0
+MAX_GAP_S = 5.0
+"""Longest wait between two replayed messages: a longer silence in the file (or a forged log time) is cut to this."""
 
 
 class ReplaySettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -47,6 +49,9 @@ class ReplaySettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     """The MCAP file to replay (the first argument)."""
     rate: Annotated[float, msgspec.Meta(ge=0, le=1000)] = 1.0
     """Playback speed: 1 is the recorded pace, 2 twice as fast, 0 as fast as possible."""
+
+    def __post_init__(self) -> None:
+        zero_or_at_least(self.rate, 0.001, "rate")
 
 
 def leading_file_argument(argv: Sequence[str], flag: str = "--file") -> list[str]:
@@ -98,18 +103,25 @@ class Replay:
         items = [m for m in self.recording.messages if m.relative_key in self.publishers]
         if not items:
             return 0
-        origin_ns = items[0].log_time_ns
-        started = time.monotonic()
-        sent = 0
+        due = time.monotonic()
+        previous_ns = items[0].log_time_ns
+        sent, cut = 0, 0
         for item in items:
             if rate > 0:
-                due = started + (item.log_time_ns - origin_ns) / 1e9 / rate
+                gap_s = (item.log_time_ns - previous_ns) / 1e9 / rate
+                if gap_s > MAX_GAP_S:
+                    cut += 1
+                    gap_s = MAX_GAP_S
+                due += max(0.0, gap_s)
+                previous_ns = item.log_time_ns
                 if stop.wait(max(0.0, due - time.monotonic())):
                     break
             elif stop.is_set():
                 break
             self.publishers[item.relative_key].put(item.message)
             sent += 1
+        if cut:
+            logger.info("%d silences longer than %g s in the recording were cut to %g s", cut, MAX_GAP_S, MAX_GAP_S)
         return sent
 
     def close(self) -> None:
@@ -121,21 +133,18 @@ class Replay:
             publisher.undeclare()
 
 
-def live_sim(session: zenoh.Session, keys: Keys) -> bool:
-    """Whether a sim (or another replay) already serves this robot id."""
-    replies = session.liveliness().get(keys.alive("sim"), timeout=LIVE_SIM_CHECK_S)
-    return any(r.ok is not None for r in replies)
-
-
 def replay(session: zenoh.Session, settings: ReplaySettings, stop: threading.Event, recording: Recording,
            robot_id: str) -> int:
     """Publish the recording once (refused when a live sim serves `robot_id`); returns the exit code."""
-    keys = Keys(robot_id)
-    if live_sim(session, keys):
-        return fail(PROG, f"a live sim already serves robot id {robot_id!r}; replay under another one: --robot-id ID")
+    owner = current_owner(session, Keys(robot_id))
+    if owner is not None:
+        return fail(PROG, taken_message(robot_id, owner))
     player = Replay(session, recording, robot_id)
     logger.info("replaying %s under zensim/%s at rate %g (%d messages)", settings.file, robot_id, settings.rate,
                 sum(1 for m in recording.messages if m.relative_key in player.publishers))
+    if recording.unreadable:
+        logger.warning("%d messages of the file did not decode as their key's type and are not replayed",
+                       recording.unreadable)
     try:
         sent = player.play(settings.rate, stop)
     finally:

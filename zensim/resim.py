@@ -9,6 +9,11 @@ the number of steps it ran. Re-simulation starts from the recorded state at the 
 at its time for its steps, and compares joint positions and base pose with the recorded state at the
 end of each. Same machine and build: the divergence is 0.
 
+A recording is untrusted input (any client may publish on the keys a recorder records): a command's
+steps must lie within what a sim accepts (1..MAX_STEPS_PER_REQUEST), states must fit the robot (vector
+lengths, finite numbers), a gap between recorded states longer than that many steps is not stepped
+through, and the whole run has a wall-clock budget (`--budget-s`). What is skipped is said in a note.
+
 Real-time recordings hold only what arrived on `cmd/motors`. The sim applied each at the first physics
 step after it arrived, which no recording can know; resim applies it at the last state the recorder
 had seen before it, i.e. up to one state period (10 ms at 100 Hz) early, and lets the watchdog's wall
@@ -20,6 +25,7 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from collections.abc import Sequence
 from typing import Annotated, ClassVar
 from dataclasses import dataclass, field
@@ -31,6 +37,7 @@ import numpy as np
 from zensim.common.settings import settings_or_exit
 from zensim.robots import robot_files
 from zensim.schemas import AppliedCommand, JointState, MotorCommand, Odometry, ResetRequest
+from zensim.schemas.messages import MAX_STEPS_PER_REQUEST
 from zensim.sim.physics import CommandError, Limits, Simulation
 
 from .mcapfile import Recording, read_recording
@@ -56,6 +63,24 @@ class ResimSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """Largest accepted kp, as the recording sim had it, N m/rad."""
     max_kd: Annotated[float, msgspec.Meta(gt=0, le=1e5)] = 500.0
     """Largest accepted kd, as the recording sim had it, N m s/rad."""
+    budget_s: Annotated[float, msgspec.Meta(ge=1, le=86_400)] = 600.0
+    """Wall-clock seconds the re-simulation may take; past it, resim stops and says so (exit code 1)."""
+
+
+class OverBudget(Exception):
+    """The re-simulation ran out of its wall-clock budget."""
+
+
+class Budget:
+    """A wall-clock deadline, checked between commands (one command runs at most MAX_STEPS_PER_REQUEST steps)."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.deadline = time.monotonic() + seconds
+
+    def check(self, sim_time_s: float) -> None:
+        if time.monotonic() > self.deadline:
+            raise OverBudget(f"stopped after the --budget-s of {self.seconds:g} s, at sim time {sim_time_s:.3f} s")
 
 
 @dataclass
@@ -98,13 +123,29 @@ def _instant(t: float) -> int:
     return round(t * 1e6)
 
 
+def fits(n_joints: int, message: object) -> bool:
+    """A recorded state the robot can take: vectors of the robot's lengths, every number finite."""
+    vectors: tuple[Sequence[float], ...]
+    lengths: tuple[int, ...]
+    if isinstance(message, JointState):
+        vectors = (message.q, message.dq)
+        lengths = (n_joints, n_joints)
+    elif isinstance(message, Odometry):
+        vectors = (message.pos, message.quat_wxyz, message.lin_vel_world, message.ang_vel_body)
+        lengths = (3, 4, 3, 3)
+    else:
+        return False
+    return math.isfinite(message.sim_time_s) and all(
+        len(v) == n and all(math.isfinite(x) for x in v) for v, n in zip(vectors, lengths))
+
+
 class StateIndex:
     """Recorded joint states and odometry by sim time, within one segment (no reset inside, see
-    `one_segment`, so each instant has one state)."""
+    `one_segment`, so each instant has one state). States that do not fit the robot are left out."""
 
-    def __init__(self, recording: Recording) -> None:
-        self.joints = {_instant(m.sim_time_s): m for m in recording.of("state/joints")}
-        self.odom = {_instant(m.sim_time_s): m for m in recording.of("state/odom")}
+    def __init__(self, recording: Recording, n_joints: int) -> None:
+        self.joints = {_instant(m.sim_time_s): m for m in recording.of("state/joints") if fits(n_joints, m)}
+        self.odom = {_instant(m.sim_time_s): m for m in recording.of("state/odom") if fits(n_joints, m)}
 
     def at(self, t: float) -> tuple[JointState | None, Odometry | None]:
         return self.joints.get(_instant(t)), self.odom.get(_instant(t))
@@ -136,11 +177,18 @@ def place(sim: Simulation, joints: JointState, odom: Odometry) -> bool:
     return False
 
 
-def resim_lockstep(sim: Simulation, recording: Recording, applied: list[AppliedCommand]) -> Divergence:
-    states = StateIndex(recording)
+def resim_lockstep(sim: Simulation, recording: Recording, applied: list[AppliedCommand], budget: Budget) -> Divergence:
+    states = StateIndex(recording, sim.robot.nu)
     result = Divergence()
     synced = False
     for command in applied:
+        budget.check(sim.sim_time_s)
+        if not 1 <= command.steps <= MAX_STEPS_PER_REQUEST or not math.isfinite(command.sim_time_s):
+            result.notes.append(f"command {command.seq} skipped: {command.steps} steps at t = {command.sim_time_s:.6g} "
+                                f"is not something a sim runs (1..{MAX_STEPS_PER_REQUEST} steps)")
+            result.skipped += 1
+            synced = False
+            continue
         if not synced or abs(sim.sim_time_s - command.sim_time_s) >= TIME_MATCH_S:
             # The start, or the recording's sim was reset (or stepped by hand) since the last command.
             joints, odom = states.at(command.sim_time_s)
@@ -169,19 +217,18 @@ def resim_lockstep(sim: Simulation, recording: Recording, applied: list[AppliedC
     return result
 
 
-def resim_realtime(sim: Simulation, recording: Recording) -> Divergence:
+def resim_realtime(sim: Simulation, recording: Recording, budget: Budget) -> Divergence:
     """Commands placed at the last recorded state before their arrival (see the module docstring)."""
     result = Divergence(exact_start=False)
     timeline: list[tuple[float, object]] = []
     last_t: float | None = None
     pending_odom: dict[float, Odometry] = {}
-    joints_at: dict[float, JointState] = {}
+    n_joints = sim.robot.nu
     for item in recording.messages:
-        if item.relative_key == "state/joints":
+        if item.relative_key == "state/joints" and fits(n_joints, item.message):
             last_t = item.message.sim_time_s
-            joints_at[last_t] = item.message
             timeline.append((last_t, item.message))
-        elif item.relative_key == "state/odom":
+        elif item.relative_key == "state/odom" and fits(n_joints, item.message):
             pending_odom[item.message.sim_time_s] = item.message
         elif item.relative_key == "cmd/motors" and last_t is not None:
             timeline.append((last_t, item.message))
@@ -193,6 +240,7 @@ def resim_realtime(sim: Simulation, recording: Recording) -> Divergence:
     place(sim, first, pending_odom[t0])
     dt = sim.timestep_s
     for t, message in timeline:
+        budget.check(sim.sim_time_s)
         if t < t0:
             continue
         if isinstance(message, MotorCommand):
@@ -203,7 +251,13 @@ def resim_realtime(sim: Simulation, recording: Recording) -> Divergence:
                 result.notes.append(f"a command refused: {exc}")
             continue
         n = round((t - sim.sim_time_s) / dt)
-        if n > 0:
+        if n > MAX_STEPS_PER_REQUEST and t in pending_odom:
+            # Longer than any sim steps between two states: a forged or damaged time. Start over there.
+            result.notes.append(f"a gap of {t - sim.sim_time_s:.6g} s between recorded states was not stepped "
+                                f"through: re-started from the state at t = {t:.6g} s")
+            place(sim, message, pending_odom[t])  # type: ignore[arg-type]
+            continue
+        if 0 < n <= MAX_STEPS_PER_REQUEST:
             sim.step(n)
             result.sim_time_s = sim.sim_time_s
             result.add(sim, message if isinstance(message, JointState) else None, pending_odom.get(t))
@@ -275,12 +329,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"zensim resim: {exc}", file=sys.stderr)
         return 2
     applied = recording.of("state/applied")
-    if applied:
-        kind = "lockstep"
-        result = resim_lockstep(sim, recording, applied)
-    else:
-        kind = "real-time"
-        result = resim_realtime(sim, recording)
+    kind = "lockstep" if applied else "real-time"
+    budget = Budget(settings.budget_s)
+    try:
+        result = resim_lockstep(sim, recording, applied, budget) if applied else resim_realtime(sim, recording, budget)
+    except OverBudget as exc:
+        print(f"zensim resim: {exc}", file=sys.stderr)
+        return 1
     print(f"resim {settings.file}: {kind} recording of {recording.robot_id} ({sim.robot.name}, {sim.mode}), "
           f"{result.commands} commands, {result.compared} states compared, up to t = {result.sim_time_s:.3f} s")
     print(f"largest divergence: joint position {result.joint_rad:.6g} rad, base position {result.base_pos_m:.6g} m, "
@@ -299,7 +354,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if cut:
         print(f"note: {cut}")
     if result.skipped:
-        print(f"note: {result.skipped} commands skipped: no recorded state at their start time (samples lost)")
+        print(f"note: {result.skipped} commands skipped: no recorded state at their start time (samples lost), "
+              "or steps no sim runs")
+    if recording.unreadable:
+        print(f"note: {recording.unreadable} messages of the file did not decode as their key's type and were skipped")
     for note in result.notes[:10]:
         print(f"note: {note}")
     if result.compared == 0:

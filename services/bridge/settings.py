@@ -6,7 +6,7 @@ from typing import Annotated, ClassVar
 
 import msgspec
 
-from zensim.common.settings import CommonSettings
+from zensim.common.settings import CommonSettings, zero_or_at_least
 
 MAX_RATE_HZ = 1000.0
 
@@ -21,7 +21,7 @@ class BridgeSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     """Rate of the held targets on state/targets (the viewer's ghost), Hz; 0 turns it off."""
     slew_rad_s: Annotated[float, msgspec.Meta(ge=0, le=1000)] = 2.0
     """Slew limit: most a commanded joint position moves per second, rad/s; 0 turns it off."""
-    info_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
+    info_timeout_s: Annotated[float, msgspec.Meta(ge=0.01, le=3600)] = 1.0
     """How long each query of the sim's info/robot waits before it is retried, s."""
     robot: str | None = None
     """Bundled robot (e.g. g1) to read joints, limits and gains from instead of asking the sim."""
@@ -29,3 +29,6 @@ class BridgeSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     """A URDF to read joints and limits from instead of asking the sim (gains from --control)."""
     control: str | None = None
     """A control.toml to go with --urdf or --robot."""
+
+    def __post_init__(self) -> None:
+        zero_or_at_least(self.targets_rate_hz, 1.0, "targets_rate_hz")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 import time
 
 import zenoh
@@ -19,7 +20,9 @@ def setup_logging(level: str) -> None:
 class RateLimitedLog:
     """Log at most one line per `period_s` per limiter, counting what it held back.
 
-    A flood of malformed inputs must not turn into a flood of log lines.
+    A flood of malformed inputs, or of requests that each deserve a line, must not turn into a
+    flood of log lines. Every per-request line in zensim goes through one of these. Safe to call
+    from any thread.
     """
 
     def __init__(self, logger: logging.Logger, period_s: float = 1.0) -> None:
@@ -27,14 +30,21 @@ class RateLimitedLog:
         self._period_s = period_s
         self._last = -float("inf")
         self._suppressed = 0
+        self._lock = threading.Lock()
 
     def warning(self, msg: str, *args: object) -> None:
+        self.log(logging.WARNING, msg, *args)
+
+    def info(self, msg: str, *args: object) -> None:
+        self.log(logging.INFO, msg, *args)
+
+    def log(self, level: int, msg: str, *args: object) -> None:
         now = time.monotonic()
-        if now - self._last < self._period_s:
-            self._suppressed += 1
-            return
-        if self._suppressed:
-            msg = f"{msg} (and {self._suppressed} more like it held back)"
-        self._logger.warning(msg, *args)
-        self._last = now
-        self._suppressed = 0
+        with self._lock:
+            if now - self._last < self._period_s:
+                self._suppressed += 1
+                return
+            suppressed, self._suppressed, self._last = self._suppressed, 0, now
+        if suppressed:
+            msg = f"{msg} (and {suppressed} more like it held back)"
+        self._logger.log(level, msg, *args)

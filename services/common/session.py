@@ -127,7 +127,7 @@ def _uses_meeting_point(settings: ZenohSettings) -> bool:
 
 
 def open_session(settings: ZenohSettings, role: str = "viewer", claim_meeting_point: bool = True,
-                 extra: Mapping[str, object] | None = None) -> zenoh.Session:
+                 extra: Mapping[str, object] | None = None, timeout_s: float | None = None) -> zenoh.Session:
     """Open a session; close it when done (`zensim.common.entry.serve` does, in bounded time).
 
     A client waits for its router with no timeout, saying so every few
@@ -141,10 +141,11 @@ def open_session(settings: ZenohSettings, role: str = "viewer", claim_meeting_po
         claim_meeting_point: a peer with no endpoints may become the local meeting point; a short-lived
             tool (`zensim check`) must not, or a router started meanwhile could not bind it.
         extra: config paths and values the service sets for itself (the router's input limits).
+        timeout_s: give up after this long (a tool with a deadline, `zensim check`); None waits for the router.
 
     Raises:
-        StartupError: the config file, the secure folder, an endpoint or a port is refused; the text
-            names the setting.
+        StartupError: the config file, the secure folder, an endpoint or a port is refused, or no router
+            answered within `timeout_s`; the text names the setting.
     """
     if claim_meeting_point and _uses_meeting_point(settings):
         config = _config(settings, role, True, extra)
@@ -155,7 +156,7 @@ def open_session(settings: ZenohSettings, role: str = "viewer", claim_meeting_po
         except StartupError:
             logger.info("zenoh: %s is taken (a router or another service): joining it", LOCAL_MEETING_ENDPOINT)
     config = _config(settings, role, False, extra)
-    session = _open(settings, config)
+    session = _open(settings, config, timeout_s)
     logger.info("%s", endpoints(config))
     return session
 
@@ -171,7 +172,7 @@ def _config(settings: ZenohSettings, role: str, meet_here: bool, extra: Mapping[
                            f"{settings.config_file}): {_first_line(exc)}") from None
 
 
-def _open(settings: ZenohSettings, config: zenoh.Config) -> zenoh.Session:
+def _open(settings: ZenohSettings, config: zenoh.Config, timeout_s: float | None = None) -> zenoh.Session:
     outcome: dict[str, object] = {}
 
     def open_in_thread() -> None:
@@ -184,9 +185,14 @@ def _open(settings: ZenohSettings, config: zenoh.Config) -> zenoh.Session:
     try:
         opener = threading.Thread(target=open_in_thread, name="zenoh-open", daemon=True)
         opener.start()
-        next_word = time.monotonic() + WAITING_LOG_PERIOD_S
+        started = time.monotonic()
+        next_word = started + WAITING_LOG_PERIOD_S
         while opener.is_alive():
             opener.join(0.1)
+            if opener.is_alive() and timeout_s is not None and time.monotonic() - started >= timeout_s:
+                # The opener thread is a daemon: left behind, it ends with the process.
+                where = ", ".join(settings.connect) or LOCAL_MEETING_ENDPOINT
+                raise StartupError(f"no zenoh router answered at {where} within {timeout_s:g} s")
             if opener.is_alive() and time.monotonic() >= next_word:
                 where = ", ".join(settings.connect) or LOCAL_MEETING_ENDPOINT
                 logger.warning("waiting for the router at %s", where)

@@ -104,6 +104,13 @@ class ZenohSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
                     raise ValueError(f"{exc} - at --zenoh-{field} / {ENV_PREFIX}ZENOH_{field.upper()}") from None
 
 
+def zero_or_at_least(value: float, floor: float, flag: str) -> None:
+    """A rate or factor where 0 means "off" or "unbounded" and anything else must be sane: 1e-300 passed a
+    `ge=0` check and then a service never published again. Raises ValueError naming the flag."""
+    if value != 0 and value < floor:
+        raise ValueError(f"must be 0 or at least {floor:g}, got {value:g} - at --{flag.replace('_', '-')}")
+
+
 class CommonSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Settings every service has; their variables carry no service prefix."""
 

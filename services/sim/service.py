@@ -37,6 +37,7 @@ import msgspec
 import zenoh
 
 from zensim.common.pacing import Pacer
+from zensim.common.claim import current_owner, taken_message
 from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, is_wildcard, payload_of, reply
 from zensim.robots import robot_files
@@ -507,6 +508,9 @@ def load_simulation(settings: SimSettings) -> Simulation:
 
 def run(session: zenoh.Session, settings: SimSettings, stop: threading.Event, sim: Simulation) -> int:
     """Serve `sim` on the session until `stop` is set. Returns the exit code."""
+    owner = current_owner(session, Keys(settings.robot_id))
+    if owner is not None:
+        raise StartupError(taken_message(settings.robot_id, owner))
     service = SimService(session, settings, sim, stop)
     logger.info("sim up on %s", service.keys.root)
     try:

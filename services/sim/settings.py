@@ -6,7 +6,7 @@ from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
-from zensim.common.settings import CommonSettings
+from zensim.common.settings import CommonSettings, zero_or_at_least
 from zensim.schemas.messages import Mode
 
 
@@ -22,17 +22,17 @@ class SimSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     """Control file for the URDF (default: control.toml beside it, else built-in defaults)."""
     mode: Mode = "floating"
     """floating (free base, gravity) or fixed (base welded in the air, gravity off)."""
-    timestep_s: Annotated[float, msgspec.Meta(gt=0, le=0.05)] | None = None
+    timestep_s: Annotated[float, msgspec.Meta(ge=1e-4, le=0.05)] | None = None
     """Physics step, s (default: the control file's, 0.002)."""
     rtf: Annotated[float, msgspec.Meta(ge=0, le=1000)] = 1.0
     """Target real-time factor; 0 runs as fast as possible."""
-    state_rate_hz: Annotated[float, msgspec.Meta(gt=0, le=10_000)] = 100.0
+    state_rate_hz: Annotated[float, msgspec.Meta(ge=1, le=10_000)] = 100.0
     """Rate of state/joints, state/odom and state/imu in sim time, Hz (at most the physics rate)."""
     state_clock: Literal["sim", "wall"] = "sim"
     """Clock of state_rate_hz: sim (one state per 1/rate of sim time) or wall (per 1/rate of wall time)."""
-    status_rate_hz: Annotated[float, msgspec.Meta(gt=0, le=1000)] = 10.0
+    status_rate_hz: Annotated[float, msgspec.Meta(ge=0.1, le=1000)] = 10.0
     """Rate of state/sim in wall time, Hz."""
-    watchdog_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 0.5
+    watchdog_timeout_s: Annotated[float, msgspec.Meta(ge=0.01, le=3600)] = 0.5
     """Wall time without a motor command after which the default pose is held, s."""
     auto_reset_on_fall: bool = False
     """Reset to the default pose after the robot has been fallen for fall_reset_delay_s."""
@@ -48,3 +48,6 @@ class SimSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     """realtime (paced by rtf) or lockstep (each motor command advances lockstep_steps, then time stands still)."""
     lockstep_steps: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 10
     """Lockstep: physics steps each motor command advances (10 = 20 ms at the G1's 2 ms step)."""
+
+    def __post_init__(self) -> None:
+        zero_or_at_least(self.rtf, 0.01, "rtf")

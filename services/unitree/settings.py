@@ -20,7 +20,7 @@ class UnitreeSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_
     """Network interface DDS runs on (lo, eth0, ...); empty lets Cyclone DDS choose."""
     mode_machine: Annotated[int, msgspec.Meta(ge=0, le=255)] = 0
     """Robot type code reported in LowState_.mode_machine (controllers echo it back; zensim ignores it)."""
-    status_rate_hz: Annotated[float, msgspec.Meta(gt=0, le=100)] = 2.0
+    status_rate_hz: Annotated[float, msgspec.Meta(ge=0.1, le=100)] = 2.0
     """Rate of the adapter's status on state/unitree, Hz."""
-    info_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
+    info_timeout_s: Annotated[float, msgspec.Meta(ge=0.01, le=3600)] = 1.0
     """How long each query of the sim's info/robot waits before it is retried, s."""

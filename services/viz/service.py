@@ -39,6 +39,7 @@ from zensim.common.wire import TypedPublisher, decode_input, error_text, read_pa
 from zensim.robots.description import RobotModelError, load_description, parse_urdf
 from zensim.robots.mesh_files import resolve_mesh
 from zensim.schemas import topics
+from zensim.schemas.keys import SERVICES
 from zensim.schemas import (
     Codec,
     CtlReply,
@@ -66,6 +67,13 @@ from .access import Guard
 from .web import Client, Hub, make_app
 
 logger = logging.getLogger(__name__)
+ctl_logs = {verb: RateLimitedLog(logger) for verb in ("reset", "pause", "resume", "step", "mode")}
+"""The line per control request a page sends, one limiter per verb: bounded, a page may send many."""
+alive_log = RateLimitedLog(logger)
+"""The line per liveliness change: bounded, any session may declare tokens."""
+MAX_ALIVE_NAMES = 32
+"""Distinct services shown as alive; tokens past this are ignored (counted). zensim has six."""
+MAX_ALIVE_NAME_CHARS = 32
 
 STATUS_PERIOD_S = 0.2
 PLOT_PERIOD_S = 0.1
@@ -104,6 +112,8 @@ class VizService:
         self.targets = Latest()
         self.status = Latest()
         self.alive: set[str] = set()
+        self.alive_ignored = 0
+        self.alive_logs: dict[str, RateLimitedLog] = {}
         self.alive_lock = threading.Lock()
 
         self.drawing: scene.Drawing | None = None
@@ -163,13 +173,27 @@ class VizService:
         return callback
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
+        # Any session may declare tokens here: names are bounded in length and count, and so is what the
+        # status shows and the log says (3000 invented tokens once made every page's status 624 KB).
         service = str(sample.key_expr).rsplit("/", 1)[-1]
+        if len(service) > MAX_ALIVE_NAME_CHARS:
+            self.alive_ignored += 1
+            alive_log.warning("ignored a liveliness token with a %d-character name (%d ignored so far)",
+                              len(service), self.alive_ignored)
+            return
         with self.alive_lock:
             if sample.kind == zenoh.SampleKind.PUT:
+                if len(self.alive) >= MAX_ALIVE_NAMES and service not in self.alive:
+                    self.alive_ignored += 1
+                    alive_log.warning("ignored liveliness token %r: already %d services shown (%d ignored so far)",
+                                      service, MAX_ALIVE_NAMES, self.alive_ignored)
+                    return
                 self.alive.add(service)
             else:
                 self.alive.discard(service)
-        logger.info("%s %s", service, "is alive" if sample.kind == zenoh.SampleKind.PUT else "left")
+        # zensim's own services each have their line (bounded: a few names); any other name shares one limiter.
+        line = self.alive_logs.setdefault(service, RateLimitedLog(logger)) if service in SERVICES else alive_log
+        line.info("%s %s", service, "is alive" if sample.kind == zenoh.SampleKind.PUT else "left")
         if service == "sim" and sample.kind == zenoh.SampleKind.PUT:
             # A (re)started sim may serve another robot or mode: fetch the description again.
             self._fetch_wanted.set()
@@ -344,8 +368,21 @@ class VizService:
             else:
                 self.plot_subs.pop(client, None)
             return
+        if client.ctl_in_flight:
+            self.hub.refuse(client, f"ctl/{command.verb}: this page's previous control request is still in flight")
+            return
+        client.ctl_in_flight = True
         future = self.loop.run_in_executor(self.executor, self._ctl, command)
-        future.add_done_callback(lambda f: self.hub.reply(client, f.result()))
+        future.add_done_callback(lambda f: self._ctl_done(client, command.verb, f))
+
+    def _ctl_done(self, client: Client, verb: str, future: Any) -> None:
+        client.ctl_in_flight = False
+        if future.cancelled():
+            return
+        error = future.exception()
+        out = future.result() if error is None else {"type": "ctl_reply", "verb": verb, "ok": False,
+                                                     "error": bounded(f"{type(error).__name__}: {error}")}
+        self.hub.reply(client, out)
 
     def _ctl(self, command: panel.Ctl) -> dict:
         """Executor thread: one ctl get; the page's reply as a dict."""
@@ -364,7 +401,7 @@ class VizService:
             return out
         out.update(_bounded_texts(msgspec.to_builtins(reply)))
         out["type"] = "ctl_reply"
-        logger.info("ctl/%s -> ok=%s %s", command.verb, reply.ok, reply.error or "")
+        ctl_logs[command.verb].info("ctl/%s -> ok=%s %s", command.verb, reply.ok, reply.error or "")
         return out
 
     def close(self) -> None:

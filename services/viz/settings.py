@@ -20,13 +20,13 @@ class VizSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     """TCP port of the web page (0: any free port, logged at start)."""
     urdf: str | None = None
     """A local URDF to draw (meshes resolved beside it) instead of fetching info/urdf from the sim."""
-    rate_hz: Annotated[float, msgspec.Meta(gt=0, le=240)] = 60.0
+    rate_hz: Annotated[float, msgspec.Meta(ge=1, le=240)] = 60.0
     """Most pose updates per second sent to a browser; each browser gets only the newest pose when ready."""
     ghost: bool = True
     """Draw the translucent commanded pose (state/targets)."""
     ghost_offset_m: tuple[float, ...] = (0.0, 0.9, 0.0)
     """Where the ghost stands relative to the robot, x,y,z in m, world frame (default: beside it; 0,0,0: over it)."""
-    query_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 5.0
+    query_timeout_s: Annotated[float, msgspec.Meta(ge=0.01, le=3600)] = 5.0
     """Timeout of each zenoh get (description, ctl requests), s."""
     allowed_hosts: tuple[str, ...] = ()
     """Extra Host names the page answers to, comma-separated (loopback names, IP addresses and --host always;

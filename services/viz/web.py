@@ -16,6 +16,12 @@ Binary messages carry an 8-byte header of two little-endian uint32:
 scene generation, so a frame never lands on a scene it was not made for.
 Text messages are JSON in both directions; what browsers send is validated by
 `panel.parse_client_message` before anything reaches zenoh.
+
+Every write to a page is bounded: a page may have at most `MAX_PENDING_WRITES`
+writes not yet taken by its socket; past that it is a page that does not read
+(slow or hostile) and it is dropped (closed, counted), so it never holds memory
+or the loop for the others. A page's own messages are rate-limited (a token
+bucket), and every write's failure is collected, never left unretrieved.
 """
 
 from __future__ import annotations
@@ -25,6 +31,8 @@ import importlib.util
 import json
 import logging
 import struct
+import time
+from collections import deque
 from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
@@ -42,10 +50,20 @@ logger = logging.getLogger(__name__)
 refusals = RateLimitedLog(logger)
 access_log = logging.getLogger("zensim.viz.access")
 refused_requests = RateLimitedLog(access_log)
+drops = RateLimitedLog(logger)
 
 KIND_COMMAND = 1
 KIND_FRAME = 2
 MAX_CLIENT_MESSAGE_BYTES = 64 * 1024
+MAX_PENDING_WRITES = 256
+"""Writes a page may leave unread (the scene is ~40 commands; frames and status wait for the previous one)."""
+PAGE_MESSAGES_PER_S = 200.0
+"""A page's sustained message rate (sliders send at the display rate); past it messages are refused."""
+PAGE_MESSAGE_BURST = 400.0
+MAX_OVER_RATE = 2000
+"""Messages past the rate a page may send before it is dropped as hostile (ten seconds' worth)."""
+DROPPED_CLOSE_CODE = 1008
+"""Websocket close code "policy violation": the page did not read what it was sent."""
 STATIC_DIR = Path(str(resources.files("zensim.viz") / "static"))
 MESHCAT_JS = Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js"
 # Located without importing plotly (its Python side is not needed, only the bundled JS).
@@ -54,6 +72,30 @@ PLOTLY_JS = Path(importlib.util.find_spec("plotly").origin).parent / "package_da
 
 def header(kind: int, generation: int) -> bytes:
     return struct.pack("<II", kind, generation)
+
+
+class TokenBucket:
+    """`rate` events per second with bursts of `burst`; `take()` says whether one more is allowed now."""
+
+    def __init__(self, rate: float, burst: float) -> None:
+        self.rate, self.burst = rate, burst
+        self.tokens = burst
+        self.at = time.monotonic()
+
+    def take(self) -> bool:
+        now = time.monotonic()
+        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.rate)
+        self.at = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
+
+
+def _collect(future: Any) -> None:
+    """A write to a page that left fails: collected here, not reported as "never retrieved"."""
+    if not future.cancelled():
+        future.exception()
 
 
 class Client:
@@ -66,12 +108,49 @@ class Client:
         self.sent_seq = -1
         self.frames_sent = 0
         self.status_busy = False
+        self.unwritten: deque[Any] = deque()
+        """Futures of writes handed to tornado that the socket has not taken yet, oldest first."""
+        self.dropped = False
+        self.on_drop: Callable[[Client], None] | None = None
+        self.messages = TokenBucket(PAGE_MESSAGES_PER_S, PAGE_MESSAGE_BURST)
+        self.over_rate = 0
+        self.over_rate_told = TokenBucket(1.0, 1.0)
+        """The page hears why at most once a second: a reply per refused message would amplify a flood."""
+        self.ctl_in_flight = False
+        """One control request per page at a time: a page cannot queue resets faster than the sim answers."""
 
     def send(self, data: bytes | str, binary: bool) -> Any:
+        """Write to the page; None when it is gone or was dropped for not reading."""
+        if self.dropped:
+            return None
+        while self.unwritten and self.unwritten[0].done():  # writes complete in order
+            self.unwritten.popleft()
+        if len(self.unwritten) >= MAX_PENDING_WRITES:
+            self.drop(f"{len(self.unwritten)} writes unread")
+            return None
         try:
-            return self.handler.write_message(data, binary=binary)
+            future = self.handler.write_message(data, binary=binary)
         except tornado.websocket.WebSocketClosedError:
             return None
+        self.unwritten.append(future)
+        future.add_done_callback(_collect)
+        return future
+
+    def drop(self, why: str) -> None:
+        """Close a page that does not read what it is sent, or floods (counted by the hub)."""
+        if self.dropped:
+            return
+        self.dropped = True
+        if self.on_drop is not None:
+            self.on_drop(self)
+        drops.warning("dropped a page that does not read or floods: %s", why)
+        connection = self.handler.ws_connection  # handler.close() forgets it
+        self.handler.close(DROPPED_CLOSE_CODE, "too many unread messages")
+        # tornado would go on reading (and parsing) the page's flood for 5 s waiting for its close reply:
+        # a page dropped for misbehaving gets its socket shut at once.
+        stream = getattr(connection, "stream", None)
+        if stream is not None:
+            stream.close()
 
 
 class Hub:
@@ -95,6 +174,8 @@ class Hub:
         self.frame: bytes | None = None
         self.frame_seq = 0
         self.frames_sent = 0
+        self.dropped_pages = 0
+        """Pages closed because they left too many writes unread (slow or hostile)."""
 
     # --- scene ---------------------------------------------------------------
     def set_scene(self, commands: list[bytes], robot_meta: dict) -> None:
@@ -162,7 +243,12 @@ class Hub:
         self.reply(client, {"type": "error", "error": reason})
 
     # --- connections ---------------------------------------------------------
+    def _dropped(self, client: Client) -> None:
+        self.dropped_pages += 1
+        self.clients.discard(client)
+
     def opened(self, client: Client) -> None:
+        client.on_drop = self._dropped
         self.clients.add(client)
         logger.info("browser connected (%d now)", len(self.clients))
         self._send_scene(client)
@@ -217,7 +303,15 @@ class VizSocket(Guarded, tornado.websocket.WebSocketHandler):
         self.hub.opened(self.client)
 
     def on_message(self, message: str | bytes) -> None:
-        if isinstance(message, bytes):
+        if isinstance(message, bytes) or self.client.dropped:
+            return
+        if not self.client.messages.take():
+            self.client.over_rate += 1
+            self.hub.refused += 1
+            if self.client.over_rate > MAX_OVER_RATE:
+                self.client.drop(f"{self.client.over_rate} messages over {PAGE_MESSAGES_PER_S:g} a second")
+            elif self.client.over_rate_told.take():
+                self.hub.refuse(self.client, f"more than {PAGE_MESSAGES_PER_S:g} messages a second from this page")
             return
         try:
             data = json.loads(message)
@@ -234,6 +328,13 @@ class VizSocket(Guarded, tornado.websocket.WebSocketHandler):
 
 
 class NoCacheStatic(Guarded, tornado.web.StaticFileHandler):
+    @classmethod
+    def get_absolute_path(cls, root: str, path: str) -> str:
+        # A NUL (`/static/x%00.js`) made os.stat raise: a 500 and a traceback per request.
+        if "\x00" in path:
+            raise tornado.web.HTTPError(404)
+        return super().get_absolute_path(root, path)
+
     def set_extra_headers(self, path: str) -> None:
         # A restarted viz may serve a newer page: never let the browser keep an old one.
         self.set_header("Cache-Control", "no-cache")
