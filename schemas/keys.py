@@ -16,9 +16,9 @@ from .topics import TOPICS, Topic
 ROOT: Final = "zensim"
 DEFAULT_ROBOT_ID: Final = "g1"
 ROBOT_ID_PATTERN: Final = re.compile(r"[a-z0-9_-]+")
-SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree")
+SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree", "ros1")
 """Every service that declares `alive/{service}`; `zensim up` starts the first four in this order (the
-unitree adapter in place of the bridge with `--unitree`)."""
+unitree adapter in place of the bridge with `--unitree`, the ROS 1 gateway last with `--ros1`)."""
 
 CTL_VERBS: Final = ("reset", "pause", "resume", "step", "mode", "advance")
 
@@ -54,6 +54,7 @@ class Keys:
         self.mesh_any = f"{self.root}/info/mesh/**"
         self.alive_any = f"{self.root}/alive/*"
         self.unitree_status = f"{self.root}/state/unitree"
+        self.ros1_status = f"{self.root}/state/ros1"
         self.applied = f"{self.root}/state/applied"
         self.everything = f"{self.root}/**"
 

@@ -29,6 +29,7 @@ from .messages import (
     ResetRequest,
     ResumeRequest,
     RobotInfo,
+    Ros1Status,
     SimStatus,
     StepRequest,
     UnitreeStatus,
@@ -99,6 +100,8 @@ BRIDGE_TARGETS: Final = Topic("state/targets", "publication", "bridge", "viz (gh
                               note="(all joints, as commanded after clamping and slew)")
 UNITREE_STATUS: Final = Topic("state/unitree", "publication", "unitree (the Unitree DDS adapter, docs/unitree.md)",
                               "anyone", "`status_rate_hz`, default 2 Hz", UnitreeStatus)
+ROS1_STATUS: Final = Topic("state/ros1", "publication", "ros1 (the ROS 1 gateway, docs/ros.md)", "anyone",
+                           "`status_rate_hz`, default 2 Hz", Ros1Status)
 # --- commands -------------------------------------------------------------------
 MOTORS: Final = Topic("cmd/motors", "publication", "bridge, unitree, or any client (a policy)", "sim",
                       "any; latest wins at each physics step", MotorCommand)
@@ -126,11 +129,11 @@ ROBOT_INFO: Final = Topic("info/robot", "queryable", "sim", "anyone", "on demand
 URDF: Final = Topic("info/urdf", "queryable", "sim", "anyone", "on demand", payload="URDF text (application/xml)")
 MESH: Final = Topic("info/mesh/{path}", "queryable", "sim", "anyone", "on demand",
                     payload="mesh bytes (application/octet-stream)")
-ALIVE: Final = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree", "anyone",
+ALIVE: Final = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree, ros1", "anyone",
                      "while running", payload="token")
 
 TOPICS: Final[tuple[Topic, ...]] = (
-    JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS,
+    JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
     ROBOT_INFO, URDF, MESH, ALIVE,

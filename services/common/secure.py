@@ -4,7 +4,7 @@
 
     router.json5     the router: tls/ listener, mutual TLS, the password dictionary, the access rules
     users.txt        user:password lines the router checks (zenoh's usrpwd dictionary_file)
-    sim.json5, bridge.json5, viz.json5      each service's client config (its own user and certificate)
+    sim.json5, bridge.json5, viz.json5, ros1.json5   each service's client config (its own user and certificate)
     operator.json5, viewer.json5            ready-made client configs for people and tools
     ca.pem           the CA certificate (to check the router's certificate by hand)
 
@@ -26,7 +26,7 @@ from typing import Final
 
 import zenoh
 
-SERVICE_ROLES: Final = ("sim", "bridge", "viz")
+SERVICE_ROLES: Final = ("sim", "bridge", "viz", "ros1")
 CLIENT_ROLES: Final = ("operator", "viewer")
 ROLES: Final = (*SERVICE_ROLES, *CLIENT_ROLES)
 DEFAULT_HOSTS: Final = ("localhost", "127.0.0.1", "::1", "router")
@@ -72,6 +72,16 @@ ROLE_RULES: Final[dict[str, list[tuple[str, list[str], list[str]]]]] = {
         ("ingress", ["liveliness_token"], ["alive/viz"]),
         ("egress", ["put"], ["state/**", "cmd/motors"]),
         ("egress", ["reply"], ["info/**", "ctl/**"]),
+    ],
+    # The ROS 1 gateway: sends what the bridge's clients send (joint targets, never cmd/motors: ROS
+    # input goes through the bridge's clamps and slew), its own status, and reads states and the description.
+    "ros1": [
+        ("ingress", ["put"], ["cmd/joints", "cmd/joint/*", "state/ros1"]),
+        ("ingress", ["declare_subscriber"], ["state/**"]),
+        ("ingress", ["query"], ["info/**"]),
+        ("ingress", ["liveliness_token"], ["alive/ros1"]),
+        ("egress", ["put"], ["state/**"]),
+        ("egress", ["reply"], ["info/**"]),
     ],
     "operator": [
         ("ingress", ["put"], ["cmd/**"]),
