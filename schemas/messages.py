@@ -510,7 +510,8 @@ class Ros1Status(Message, tag="ros1_status", kw_only=True):
     commands_received: int = 0
     """ROS messages read on the command topics (per-joint Float64 and the GUI's JointState), good or bad."""
     commands_forwarded: int = 0
-    """Of those, the ones passed on to the bridge (cmd/joint/{joint}, cmd/joints)."""
+    """Of those, the ones passed on to the bridge (cmd/joint/{joint}, cmd/joints); a GUI message in which no
+    slider moved is accepted but not passed on."""
     rejected: int = 0
     """Of those, the ones refused whole: NaN or infinity, unknown joint, outside the joint's limits,
     names and positions of different lengths, a name given twice."""

@@ -290,7 +290,7 @@ class Gateway:
         changed = self._gui_changes.changed(targets)
         if changed is not None:
             self._targets.put(changed)
-        self._forwarded()
+            self._forwarded()
 
     # --- the master ------------------------------------------------------------------------------
 
@@ -430,6 +430,8 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
     rospy.init_node(node, disable_signals=True)
     # init_node points the root logger at a file in ROS_HOME/log: ours go to stderr like every service's.
     logging.basicConfig(level=settings.log_level.upper(), format=FORMAT, force=True)
+    if logger.getEffectiveLevel() > logging.DEBUG:
+        logging.getLogger("rospy").setLevel(logging.WARNING)  # a line per connection otherwise
     if mesh_server is not None:
         mesh_server.start()
     gateway = Gateway(session, keys, settings, names, mesh_server)
