@@ -15,6 +15,8 @@ import sys
 import xmlrpc.client
 from pathlib import Path
 
+import yaml
+
 from support import REPO, free_port, wait_for
 
 DEBIAN_ROS_PYTHON = "/usr/lib/python3/dist-packages"
@@ -39,8 +41,9 @@ def import_rospy():
 class Roscore:
     """`roscore -p PORT` with its own ROS_HOME; `env` is what every process of the test's graph needs."""
 
-    def __init__(self, home: Path) -> None:
-        self.port = free_port()
+    def __init__(self, home: Path, port: int | None = None) -> None:
+        self.home = home
+        self.port = port or free_port()
         self.uri = f"http://127.0.0.1:{self.port}"
         self.env = {"ROS_MASTER_URI": self.uri, "ROS_IP": "127.0.0.1", "ROS_HOME": str(home)}
         self.log_path = home / "roscore.out"
@@ -59,6 +62,30 @@ class Roscore:
             return pid if code == 1 else None
         except OSError:
             return None
+
+    def param(self, name: str):
+        """A parameter's value on this master (xmlrpc, no rospy node needed), or None when unset."""
+        with xmlrpc.client.ServerProxy(self.uri) as master:
+            code, _, value = master.getParam("/test", name)
+        return value if code == 1 else None
+
+    def publishers(self, topic: str) -> list[str]:
+        """The nodes that publish `topic` according to this master."""
+        with xmlrpc.client.ServerProxy(self.uri) as master:
+            _, _, (publishers, _subscribers, _services) = master.getSystemState("/test")
+        return next((nodes for name, nodes in publishers if name == topic), [])
+
+    def subscribers(self, topic: str) -> list[str]:
+        with xmlrpc.client.ServerProxy(self.uri) as master:
+            _, _, (_publishers, subscribers, _services) = master.getSystemState("/test")
+        return next((nodes for name, nodes in subscribers if name == topic), [])
+
+    def echo_once(self, topic: str, timeout_s: float = 20) -> dict:
+        """One message of `topic`, read by `rostopic echo -n 1` (Debian's rostopic, its own process)."""
+        result = subprocess.run(["rostopic", "echo", "-n", "1", topic], env={**os.environ, **self.env},
+                                capture_output=True, text=True, timeout=timeout_s)
+        assert result.returncode == 0, result.stderr[-2000:]
+        return yaml.safe_load(result.stdout.split("\n---")[0])
 
     def stop(self) -> None:
         """SIGINT, as a terminal's Ctrl-C: roscore stops rosmaster and rosout; then the whole group is killed."""

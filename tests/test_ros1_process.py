@@ -11,14 +11,15 @@ import math
 import os
 import threading
 import time
+import urllib.error
 import urllib.request
-import xmlrpc.client
 
 import pytest
 
 from ros_graph import Roscore, import_rospy
 from support import TWO_JOINT_ARM, Latest, Service, ctl, free_port, plain_client, wait_for
 from zensim.robots.description import parse_urdf
+from zensim.ros1.mapping import mesh_references
 from zensim.schemas import JointState, JointTargets, Keys, Odometry, Ros1Status
 
 rospy = import_rospy()
@@ -300,3 +301,61 @@ def test_bad_input_on_every_ros_topic_is_counted_not_applied_and_outputs_keep_th
     joints.wait(lambda s: abs(s.q[names_order.index(ELBOW)] - 0.3) < 0.05, 15, "the elbow at 0.3 after the flood")
     for subscriber in zenoh_commands:
         subscriber.undeclare()
+
+
+def test_robot_description_meshes_load_from_where_it_says(official_g1_dir, tmp_path) -> None:
+    """Unitree's G1 with its 61 mesh references: each URL in robot_description serves the file's bytes."""
+    core = Roscore(tmp_path / "ros")
+    stack = Stack(core, tmp_path, sim_args=("--urdf", str(official_g1_dir / "g1_29dof.urdf")), bridge=False)
+    try:
+        original = (official_g1_dir / "g1_29dof.urdf").read_text()
+        description = core.param("/robot_description")
+        urls = mesh_references(description)
+        assert len(urls) == len(mesh_references(original)) == 61
+        fetched: dict[str, bytes] = {}
+        for filename, url in zip(mesh_references(original), urls):
+            assert url.startswith("http://127.0.0.1:"), url
+            if url not in fetched:
+                with urllib.request.urlopen(url, timeout=30) as response:
+                    fetched[url] = response.read()
+            assert fetched[url] == (official_g1_dir / filename).read_bytes(), filename
+        # The server serves the robot's meshes and nothing else.
+        root = urls[0].split("/meshes/")[0]
+        for path in ("/etc/passwd", "/meshes/../g1_29dof.urdf", "/meshes/nothere.STL"):
+            with pytest.raises(urllib.error.HTTPError, match="404"):
+                urllib.request.urlopen(root + path, timeout=10)
+        print(f"[ros1] {len(fetched)} meshes, {sum(map(len, fetched.values())) / 1e6:.1f} MB over http from the gateway")
+    finally:
+        stack.close()
+        core.stop()
+
+
+def test_follows_a_restarted_sim_and_a_restarted_master(tmp_path) -> None:
+    """A sim restarted with another robot: new robot_description, joint names and command topics.
+    A roscore restarted on the same port: the gateway registers again and its topics flow."""
+    core = Roscore(tmp_path / "ros")
+    stack = Stack(core, tmp_path, sim_args=("--mode", "fixed"))
+    try:
+        assert "left_elbow_joint" in core.echo_once(f"{NS}/joint_states")["name"]
+        arm = tmp_path / "arm.urdf"
+        arm.write_text(TWO_JOINT_ARM)
+        stack.sim.stop()
+        stack.sim = stack.start("sim", "--urdf", str(arm), "--mode", "fixed")
+        wait_for(lambda: "two_joint_arm" in (core.param("/robot_description") or ""), 60,
+                 "robot_description of the new robot", 0.2)
+        assert core.echo_once(f"{NS}/joint_states")["name"] == ["shoulder", "elbow"]
+        assert core.subscribers(f"{NS}/elbow_controller/command") == ["/zensim_ros1_g1"]
+        assert core.subscribers(f"{NS}/left_elbow_joint_controller/command") == []
+
+        core.stop()
+        core = Roscore(tmp_path / "ros2", port=core.port)
+        wait_for(lambda: "two_joint_arm" in (core.param("/robot_description") or ""), 30,
+                 "robot_description on the new master", 0.2)
+        assert core.publishers(f"{NS}/joint_states") == ["/zensim_ros1_g1"]
+        assert core.echo_once(f"{NS}/joint_states")["name"] == ["shoulder", "elbow"]
+        status = Latest(stack.session, KEYS.ros1_status, Ros1Status).wait(lambda s: s.master_restarts >= 1, 10,
+                                                                             "the status to count the new master")
+        assert status.master_up and status.description_updates >= 3
+    finally:
+        stack.close()
+        core.stop()
