@@ -17,7 +17,7 @@ from pathlib import Path
 
 import yaml
 
-from support import REPO, free_port, wait_for
+from support import REPO, Service, free_port, plain_client, wait_for
 
 DEBIAN_ROS_PYTHON = "/usr/lib/python3/dist-packages"
 """Where Debian's python3-rospy lives; the project's venv does not see it by itself (docs/ros.md)."""
@@ -125,3 +125,88 @@ class Tool:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait(5)
         self._log.close()
+
+
+class Stack:
+    """router, sim, bridge and `zensim ros1` processes for robot id g1, and a zenoh client."""
+
+    def __init__(self, roscore: Roscore, log_dir, sim_args: tuple[str, ...] = (), bridge: bool = True) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        base = dict(os.environ, ZENSIM_ROBOT_ID="g1", ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1",
+                    **roscore.env)
+        self.services: list[Service] = []
+        self.log_dir = log_dir
+        self.client_env = dict(base, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=self.endpoint)
+        router = self.start("router", env=dict(base, ZENSIM_ZENOH_LISTEN=self.endpoint))
+        wait_for(lambda: "router up" in router.log() or not router.alive(), 15, "the router to start")
+        self.sim = self.start("sim", *sim_args)
+        if bridge:
+            self.start("bridge")
+        self.gateway = self.start("ros1", "--mesh-http-port", "0", "--status-rate-hz", "10")
+        self.session = plain_client(self.endpoint)
+        wait_for(lambda: "ros1 gateway up" in self.gateway.log() or not self.gateway.alive(), 60,
+                 "the gateway to start")
+        assert self.gateway.alive(), self.logs()
+
+    def start(self, command: str, *args: str, env: dict[str, str] | None = None) -> Service:
+        service = Service(command, list(args), env or self.client_env, self.log_dir)
+        self.services.append(service)
+        return service
+
+    def logs(self) -> str:
+        return "\n".join(f"----- {s.command} -----\n{s.log()[-3000:]}" for s in self.services)
+
+    def close(self) -> None:
+        self.session.close()
+        for service in reversed(self.services):
+            service.stop()
+
+
+class Xvfb:
+    """An X server of its own (`xvfb-run -a`, 1280x800x24) for GUI programs, screenshots and input events."""
+
+    def __init__(self, tmp: Path) -> None:
+        info = tmp / "display"
+        self._holder = subprocess.Popen(
+            [*XVFB, "sh", "-c", f'echo "$DISPLAY $XAUTHORITY" > {info}; exec sleep 3600'],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        wait_for(lambda: info.exists() and len(info.read_text().split()) == 2, 30, "Xvfb to start")
+        display, xauthority = info.read_text().split()
+        self.env = {"DISPLAY": display, "XAUTHORITY": xauthority}
+
+    def run(self, *args: str, timeout_s: float = 30) -> str:
+        result = subprocess.run(list(args), env={**os.environ, **self.env}, capture_output=True, text=True,
+                                timeout=timeout_s)
+        assert result.returncode == 0, f"{args}: {result.stderr[-1000:]}"
+        return result.stdout
+
+    def window(self, name: str) -> str | None:
+        """The largest window whose title holds `name` (a toolkit's helper windows are 1x1), or None."""
+        env = {**os.environ, **self.env}
+        found = subprocess.run(["xdotool", "search", "--name", name], env=env, capture_output=True, text=True,
+                               timeout=30).stdout.split()
+        sizes = {}
+        for window in found:
+            shell = subprocess.run(["xdotool", "getwindowgeometry", "--shell", window], env=env, capture_output=True,
+                                   text=True, timeout=30).stdout
+            geometry = dict(line.split("=", 1) for line in shell.split() if "=" in line)
+            sizes[window] = int(geometry.get("WIDTH", 0)) * int(geometry.get("HEIGHT", 0))
+        best = max(sizes, key=sizes.get, default=None)
+        return best if best is not None and sizes[best] > 100 else None
+
+    def screenshot(self, path: Path):
+        """The whole screen as an RGB numpy array (imagemagick's `import -window root`), also saved at `path`."""
+        import numpy as np
+        from PIL import Image
+
+        self.run("import", "-window", "root", str(path))
+        with Image.open(path) as image:
+            return np.asarray(image.convert("RGB"))
+
+    def stop(self) -> None:
+        os.killpg(self._holder.pid, signal.SIGTERM)
+        try:
+            self._holder.wait(10)
+        except subprocess.TimeoutExpired:
+            os.killpg(self._holder.pid, signal.SIGKILL)
+            self._holder.wait(5)

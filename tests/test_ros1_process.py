@@ -16,8 +16,8 @@ import urllib.request
 
 import pytest
 
-from ros_graph import Roscore, import_rospy
-from support import TWO_JOINT_ARM, Latest, Service, ctl, free_port, plain_client, wait_for
+from ros_graph import Roscore, Stack, import_rospy
+from support import TWO_JOINT_ARM, Latest, ctl, wait_for
 from zensim.robots.description import parse_urdf
 from zensim.ros1.mapping import mesh_references
 from zensim.schemas import JointState, JointTargets, Keys, Odometry, Ros1Status
@@ -83,41 +83,6 @@ def roscore(tmp_path_factory):
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
-
-
-class Stack:
-    """router, sim, bridge and `zensim ros1` processes for robot id g1, and a zenoh client."""
-
-    def __init__(self, roscore: Roscore, log_dir, sim_args: tuple[str, ...] = (), bridge: bool = True) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        base = dict(os.environ, ZENSIM_ROBOT_ID="g1", ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1",
-                    **roscore.env)
-        self.services: list[Service] = []
-        self.log_dir = log_dir
-        self.client_env = dict(base, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=self.endpoint)
-        router = self.start("router", env=dict(base, ZENSIM_ZENOH_LISTEN=self.endpoint))
-        wait_for(lambda: "router up" in router.log() or not router.alive(), 15, "the router to start")
-        self.sim = self.start("sim", *sim_args)
-        if bridge:
-            self.start("bridge")
-        self.gateway = self.start("ros1", "--mesh-http-port", "0", "--status-rate-hz", "10")
-        self.session = plain_client(self.endpoint)
-        wait_for(lambda: "ros1 gateway up" in self.gateway.log() or not self.gateway.alive(), 60,
-                 "the gateway to start")
-        assert self.gateway.alive(), self.logs()
-
-    def start(self, command: str, *args: str, env: dict[str, str] | None = None) -> Service:
-        service = Service(command, list(args), env or self.client_env, self.log_dir)
-        self.services.append(service)
-        return service
-
-    def logs(self) -> str:
-        return "\n".join(f"----- {s.command} -----\n{s.log()[-3000:]}" for s in self.services)
-
-    def close(self) -> None:
-        self.session.close()
-        for service in reversed(self.services):
-            service.stop()
 
 
 @pytest.fixture(scope="module")
