@@ -9,15 +9,19 @@ from __future__ import annotations
 
 import math
 import os
+import signal
+import subprocess
+import sys
 import threading
 import time
 import urllib.error
 import urllib.request
+import xmlrpc.client
 
 import pytest
 
 from ros_graph import Roscore, Stack, import_rospy
-from support import TWO_JOINT_ARM, Latest, ctl, wait_for
+from support import TWO_JOINT_ARM, Latest, ctl, free_port, plain_client, wait_for
 from zensim.robots.description import parse_urdf
 from zensim.ros1.mapping import mesh_references
 from zensim.schemas import JointState, JointTargets, Keys, Odometry, Ros1Status
@@ -324,3 +328,38 @@ def test_follows_a_restarted_sim_and_a_restarted_master(tmp_path) -> None:
     finally:
         stack.close()
         core.stop()
+
+
+def test_up_ros1_starts_roscore_and_the_gateway_and_ctrl_c_stops_them(tmp_path, robot_id) -> None:
+    """`zensim up --ros1` with no master at ROS_MASTER_URI: it starts roscore beside the services."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    port = free_port()
+    ros = {"ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_IP": "127.0.0.1", "ROS_HOME": str(tmp_path / "ros")}
+    env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, PYTHONUNBUFFERED="1", ZENSIM_SIM_MODE="fixed",
+               ZENSIM_ROS1_MESH_HTTP_PORT="0", **ros)
+    log = (tmp_path / "up.log").open("wb")
+    up = subprocess.Popen([sys.executable, "-m", "zensim", "up", "--router-endpoint", endpoint, "--viz", "false",
+                           "--ros1"], env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        with plain_client(endpoint, wait_for_router=True) as session:
+            def alive() -> set[str]:
+                replies = session.liveliness().get(f"zensim/{robot_id}/alive/*", timeout=1.0)
+                return {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
+
+            wait_for(lambda: alive() >= {"router", "sim", "bridge", "ros1"}, 60, "the services and the gateway", 0.2)
+        with xmlrpc.client.ServerProxy(ros["ROS_MASTER_URI"]) as master:
+            code, _, urdf = master.getParam("/test", "/robot_description")
+            assert code == 1 and "<robot" in urdf
+            _, _, (publishers, _, _) = master.getSystemState("/test")
+        assert f"/{robot_id}_description/joint_states" in dict(publishers)
+        up.send_signal(signal.SIGINT)
+        assert up.wait(20) == 0, (tmp_path / "up.log").read_text()
+        text = (tmp_path / "up.log").read_text()
+        assert "ros1 exited with 0" in text and "roscore exited with 0" in text, text
+        with pytest.raises(OSError):
+            with xmlrpc.client.ServerProxy(ros["ROS_MASTER_URI"]) as master:
+                master.getPid("/test")
+    finally:
+        if up.poll() is None:
+            os.killpg(up.pid, signal.SIGKILL)
+        log.close()
