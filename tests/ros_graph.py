@@ -117,10 +117,11 @@ class Tool:
         return self.log_path.read_text(errors="replace")
 
     def stop(self) -> None:
+        """SIGINT (a terminal's Ctrl-C, what ROS programs expect), then SIGKILL after 5 s."""
         if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGTERM)
+            os.killpg(self.proc.pid, signal.SIGINT)
             try:
-                self.proc.wait(10)
+                self.proc.wait(5)
             except subprocess.TimeoutExpired:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait(5)
