@@ -102,3 +102,16 @@ def test_mesh_references_point_at_the_gateway_and_nothing_else_changes() -> None
     assert mesh_references(rewritten) == ["http://127.0.0.1:7011/meshes/a%20b.STL", "http://127.0.0.1:7011/g1/meshes/c.STL"]
     assert rewritten.replace("http://127.0.0.1:7011/meshes/a%20b.STL", "meshes/a b.STL").replace(
         "http://127.0.0.1:7011/g1/meshes/c.STL", "package://g1/meshes/c.STL") == urdf
+
+
+def test_without_rospy_the_gateway_says_so_in_one_line() -> None:
+    """The project's venv does not see Debian's rospy by itself; pointed nowhere, the gateway cannot start."""
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", "zensim", "ros1", "--ros-python-path", "/nonexistent"],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.startswith("zensim ros1:")]
+    assert len(lines) == 1 and "cannot import rospy" in lines[0] and "docs/ros.md" in lines[0], result.stderr
+    assert "Traceback" not in result.stderr
