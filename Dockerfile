@@ -94,17 +94,9 @@ ENV VIRTUAL_ENV=/opt/venv \
     PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1
-COPY --from=deps /opt/venv /opt/venv
-# The Cyclone DDS C library when the venv holds the binding (build arg UNITREE=1).
-RUN set -eu; \
-    if [ -s /opt/venv/unitree-runtime-packages ]; then \
-        export DEBIAN_FRONTEND=noninteractive; \
-        apt-get update -qq; \
-        apt-get install -y -qq --no-install-recommends $(cat /opt/venv/unitree-runtime-packages) >/dev/null; \
-        rm -rf /var/lib/apt/lists/*; \
-    fi
 # Debian's ROS 1 for `zensim ros1` (build arg ROS1=1): rospy lives in /usr/lib/python3/dist-packages,
 # where the gateway finds it from the venv (docs/ros.md); ros-base brings roscore for the compose profile.
+# Before the venv: this layer stays cached while the dependencies change.
 ARG ROS1=0
 RUN set -eu; \
     if [ "$ROS1" = 1 ]; then \
@@ -113,6 +105,15 @@ RUN set -eu; \
         apt-get install -y -qq --no-install-recommends ros-base python3-rospy python3-std-msgs \
             python3-sensor-msgs python3-nav-msgs python3-geometry-msgs python3-rosgraph-msgs python3-tf2-msgs \
             >/dev/null; \
+        rm -rf /var/lib/apt/lists/*; \
+    fi
+COPY --from=deps /opt/venv /opt/venv
+# The Cyclone DDS C library when the venv holds the binding (build arg UNITREE=1).
+RUN set -eu; \
+    if [ -s /opt/venv/unitree-runtime-packages ]; then \
+        export DEBIAN_FRONTEND=noninteractive; \
+        apt-get update -qq; \
+        apt-get install -y -qq --no-install-recommends $(cat /opt/venv/unitree-runtime-packages) >/dev/null; \
         rm -rf /var/lib/apt/lists/*; \
     fi
 COPY --from=app /stage/ /
