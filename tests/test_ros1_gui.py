@@ -9,7 +9,6 @@ The test process stays out of the ROS graph; it watches the sim over Zenoh.
 from __future__ import annotations
 
 import shutil
-import time
 
 import numpy as np
 import pytest

@@ -36,7 +36,6 @@ class MeshServer:
         self._lock = threading.Lock()
         self._allowed: frozenset[str] = frozenset()
         self._cache: dict[str, bytes] = {}
-        self.requests = 0
         server = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -76,7 +75,6 @@ class MeshServer:
         return data
 
     def _answer(self, handler: BaseHTTPRequestHandler, body: bool = True) -> None:
-        self.requests += 1
         path = mesh_key_path(unquote(urlsplit(handler.path).path))
         try:
             data = self._mesh(path)
