@@ -146,7 +146,8 @@ class Gateway:
                                  queue_size=ROS_QUEUE)
                 for joint in robot.names
             ]
-            self._gui_changes.forget()
+            with self._lock:
+                self._gui_changes.forget()
         if self._mesh_server is not None:
             self._mesh_server.serve_robot(robot.mesh_paths)
         self.set_params()
@@ -287,7 +288,8 @@ class Gateway:
         except (InputError, TypeError) as exc:
             self.refusals.refuse(self.names.gui, str(exc))
             return
-        changed = self._gui_changes.changed(targets)
+        with self._lock:  # rospy calls back on one thread per publisher: two GUIs, two threads
+            changed = self._gui_changes.changed(targets)
         if changed is not None:
             self._targets.put(changed)
             self._forwarded()
