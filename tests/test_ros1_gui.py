@@ -22,8 +22,27 @@ BACKGROUND = (170, 200, 240)
 """zensim.rviz's background colour; the G1's materials are greys (0.2 and 0.7)."""
 SLIDER = "left_hip_pitch_joint"
 """The first slider of joint_state_publisher_gui (the URDF's first joint)."""
-SLIDER_XY = (290, 57)
-"""Where the first slider's groove is in the GUI's window at its default size (right of its handle)."""
+
+
+def first_slider_groove(image: np.ndarray, width: int) -> tuple[int, int] | None:
+    """A point on the first slider's groove, right of its handle, in a screenshot of the GUI's window at (0, 0).
+
+    The sliders' grooves are blue left of the handle (Qt's Fusion style); the topmost row with a run of
+    that blue is the first slider, and its groove ends where the background colour comes back to the
+    right of the blue (past the handle).
+    """
+    window = image[:, :width].astype(int)
+    blue = (window[..., 2] > 150) & (window[..., 2] - window[..., 0] > 80)
+    rows = np.nonzero(blue.sum(axis=1) > 20)[0]
+    if rows.size == 0:
+        return None
+    y = int(rows[0]) + 1
+    background = window[y, 0]
+    last_blue = int(np.nonzero(blue[y])[0].max())
+    after = np.nonzero(np.all(window[y, last_blue:] == background, axis=-1))[0]
+    if after.size == 0:
+        return None
+    return last_blue + int(after[0]) - 8, y
 
 
 @pytest.fixture
@@ -52,7 +71,7 @@ def joint_q(state: JointState, names: list[str], joint: str) -> float:
     return state.q[names.index(joint)]
 
 
-def test_gui_joint_state_publisher_gui_slider_moves_the_sim(graph) -> None:
+def test_gui_joint_state_publisher_gui_slider_moves_the_sim(graph, tmp_path) -> None:
     stack, xvfb, tool = graph
     info = ctl(stack.session, KEYS.robot_info)
     names, q_max = info["joint_names"], info["q_max"]
@@ -72,7 +91,10 @@ def test_gui_joint_state_publisher_gui_slider_moves_the_sim(graph) -> None:
     joints.wait(lambda s: all(abs(s.q[i] - start[n]) < 0.05 for i, n in enumerate(names)), 30,
                          "the robot at the sliders' start values")
 
-    x, y = SLIDER_XY
+    width = int(dict(line.split("=", 1) for line in xvfb.run("xdotool", "getwindowgeometry", "--shell", window)
+                     .split() if "=" in line)["WIDTH"])
+    x, y = wait_for(lambda: first_slider_groove(xvfb.screenshot(tmp_path / "gui.png"), width), 20,
+                    "the GUI's sliders on screen", 0.5)
     xvfb.run("xdotool", "mousemove", "--window", window, str(x), str(y), "click", "1")  # focus (and one page step)
     xvfb.run("xdotool", "key", "End")  # the slider to its maximum: the joint's upper limit
     joints.wait(lambda s: abs(joint_q(s, names, SLIDER) - q_max[0]) < 0.1, 20,
