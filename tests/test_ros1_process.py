@@ -7,6 +7,7 @@ the restart test start their own.
 
 from __future__ import annotations
 
+import gc
 import math
 import os
 import signal
@@ -81,6 +82,10 @@ def roscore(tmp_path_factory):
     try:
         yield core
     finally:
+        # rospy allows one node per process and never a second: shut it down here, and collect its
+        # sockets now, under this module's warning filters, not in a later module's test.
+        rospy.signal_shutdown("the ROS tests are done")
+        gc.collect()
         core.stop()
         for name, value in saved.items():
             if value is None:
