@@ -14,6 +14,8 @@
 #   PIP_INDEX_URL    a PyPI mirror (optional; pip reads it from the environment)
 #   UNITREE          1: also install Cyclone DDS 0.10.2 (Debian's cyclonedds-dev and the Python binding
 #                    built against it, scripts/install-cyclonedds) for `zensim unitree`; default 0
+#   ROS1             1: also install Debian's ROS 1 (roscore, rospy and the message packages) for
+#                    `zensim ros1` and a `roscore` container (compose profile `ros1`); default 0
 #
 # Layers of the final image: base | user | venv with the dependencies (changes only when
 # pyproject.toml changes) | the project itself (small; changes with the source).
@@ -92,6 +94,19 @@ ENV VIRTUAL_ENV=/opt/venv \
     PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1
+# Debian's ROS 1 for `zensim ros1` (build arg ROS1=1): rospy lives in /usr/lib/python3/dist-packages,
+# where the gateway finds it from the venv (docs/ros.md); ros-base brings roscore for the compose profile.
+# Before the venv: this layer stays cached while the dependencies change.
+ARG ROS1=0
+RUN set -eu; \
+    if [ "$ROS1" = 1 ]; then \
+        export DEBIAN_FRONTEND=noninteractive; \
+        apt-get update -qq; \
+        apt-get install -y -qq --no-install-recommends ros-base python3-rospy python3-std-msgs \
+            python3-sensor-msgs python3-nav-msgs python3-geometry-msgs python3-rosgraph-msgs python3-tf2-msgs \
+            >/dev/null; \
+        rm -rf /var/lib/apt/lists/*; \
+    fi
 COPY --from=deps /opt/venv /opt/venv
 # The Cyclone DDS C library when the venv holds the binding (build arg UNITREE=1).
 RUN set -eu; \
@@ -104,7 +119,7 @@ RUN set -eu; \
 COPY --from=app /stage/ /
 USER zensim
 WORKDIR /home/zensim
-# 7447: Zenoh (router), 7000: viz web page
+# 7447: Zenoh (router), 7000: viz web page (the ros1 profile runs on the host network)
 EXPOSE 7447 7000
 ENTRYPOINT ["zensim"]
 CMD ["--help"]

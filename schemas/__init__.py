@@ -28,6 +28,7 @@ from .messages import (
     ResetRequest,
     ResumeRequest,
     RobotInfo,
+    Ros1Status,
     SimStatus,
     StepRequest,
     UnitreeStatus,
@@ -41,5 +42,5 @@ __all__ = [
     "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
     "UnitreeStatus",
-    "AdvanceReply", "AppliedCommand",
+    "AdvanceReply", "AppliedCommand", "Ros1Status",
 ]

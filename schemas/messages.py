@@ -490,6 +490,41 @@ class UnitreeStatus(Message, frozen=True, tag="unitree_status", kw_only=True):
     """Why the most recent LowCmd_ was rejected or ignored, if one was."""
 
 
+class Ros1Status(Message, tag="ros1_status", frozen=True, kw_only=True):
+    """Health of `zensim ros1`, the ROS 1 gateway (docs/ros.md), a few times a second."""
+
+    seq: int
+    """Counts up by one per published status."""
+    master_uri: str
+    """The ROS master the gateway registers with (ROS_MASTER_URI)."""
+    master_up: bool = False
+    """True when the master answered the gateway's last check (about once a second)."""
+    master_restarts: int = 0
+    """Times the gateway found a new master (a restarted roscore) and registered with it again."""
+    joint_states_published: int = 0
+    """sensor_msgs/JointState messages published on the joint states topic since start."""
+    joint_states_rate_hz: float = 0.0
+    """JointState rate over the last status period, Hz (the sim's state rate, at most `state_rate_hz`)."""
+    sim_time_s: float = 0.0
+    """Sim time of the newest JointState, s."""
+    commands_received: int = 0
+    """ROS messages read on the command topics (per-joint Float64 and the GUI's JointState), good or bad."""
+    commands_forwarded: int = 0
+    """Of those, the ones passed on to the bridge (cmd/joint/{joint}, cmd/joints); a GUI message in which no
+    slider moved is accepted but not passed on."""
+    rejected: int = 0
+    """Of those, the ones refused whole: NaN or infinity, unknown joint, outside the joint's limits,
+    names and positions of different lengths, a name given twice."""
+    last_error: str | None = None
+    """Why the most recent ROS message was refused, if one was."""
+    command_age_s: float | None = None
+    """Wall time since the newest forwarded command, s; null before the first one."""
+    description_updates: int = 0
+    """Times robot_description was set on the master (at start, after a sim or master restart)."""
+    mesh_url: str = ""
+    """Where the gateway serves the robot's meshes over http (robot_description points there); empty when it does not."""
+
+
 WIRE_TYPES: tuple[type[Message], ...] = (
     JointState,
     Odometry,
@@ -508,5 +543,6 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     UnitreeStatus,
     AppliedCommand,
     AdvanceReply,
+    Ros1Status,
 )
 """Every top-level message type, in the order the docs list them."""

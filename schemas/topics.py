@@ -35,6 +35,7 @@ from .messages import (
     ResetRequest,
     ResumeRequest,
     RobotInfo,
+    Ros1Status,
     SimStatus,
     StepRequest,
     UnitreeStatus,
@@ -123,6 +124,8 @@ BRIDGE_TARGETS: Final = Topic("state/targets", "publication", "bridge", "viz (gh
                               note="(all joints, as commanded after clamping and slew)", name="bridge_targets")
 UNITREE_STATUS: Final = Topic("state/unitree", "publication", "unitree (the Unitree DDS adapter, docs/unitree.md)",
                               "anyone", "`status_rate_hz`, default 2 Hz", UnitreeStatus, name="unitree_status")
+ROS1_STATUS: Final = Topic("state/ros1", "publication", "ros1 (the ROS 1 gateway, docs/ros.md)", "anyone",
+                           "`status_rate_hz`, default 2 Hz", Ros1Status, name="ros1_status")
 # --- commands -------------------------------------------------------------------
 MOTORS: Final = Topic("cmd/motors", "publication", "bridge, unitree, or any client (a policy)", "sim",
                       "any; latest wins at each physics step", MotorCommand, name="motors")
@@ -150,11 +153,11 @@ ROBOT_INFO: Final = Topic("info/robot", "queryable", "sim", "anyone", "on demand
 URDF: Final[Topic[Message]] = Topic("info/urdf", "queryable", "sim", "anyone", "on demand", payload="URDF text (application/xml)", name="urdf")
 MESH: Final[Topic[Message]] = Topic("info/mesh/{path}", "queryable", "sim", "anyone", "on demand",
                     payload="mesh bytes (application/octet-stream)", name="mesh_any", wildcard="**")
-ALIVE: Final[Topic[Message]] = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree", "anyone",
+ALIVE: Final[Topic[Message]] = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree, ros1", "anyone",
                      "while running", payload="token", name="alive_any")
 
 TOPICS: Final[tuple[Topic, ...]] = (
-    JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS,
+    JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
     ROBOT_INFO, URDF, MESH, ALIVE,
@@ -205,7 +208,7 @@ ROLES: Final[tuple[Role, ...]] = (
     Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
     Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (and its locomotion controller)", publishes=("cmd/motors", "state/unitree"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/unitree",)),
-    Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
+    Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
     Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/robot", "info/urdf")),
     Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/robot", "info/urdf"), tokens=("alive/sim", "alive/replay")),
     Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**")),

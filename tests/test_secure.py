@@ -279,3 +279,25 @@ def test_an_operator_scoped_to_robot_a_cannot_move_robot_b(tmp_path: Path) -> No
         for sim in sims:
             sim.stop()
         router.stop()
+
+
+def test_ros1_role_sends_joint_targets_but_never_motor_commands(secured: tuple[str, Service, Service],
+                                                                secrets_dir: Path, robot_id: str) -> None:
+    """The ROS 1 gateway's credentials: its targets go to the bridge's keys, a cmd/motors put is dropped."""
+    endpoint, _router, _sim = secured
+    root = f"zensim/{robot_id}"
+    with zenoh.open(role_conf(secrets_dir, "ros1", endpoint)) as gateway, \
+            zenoh.open(role_conf(secrets_dir, "operator", endpoint)) as operator:
+        got: list[str] = []
+        subscriber = operator.declare_subscriber(f"{root}/**", lambda s: got.append(str(s.key_expr)))
+        joints = Latest(gateway, f"{root}/state/joints", JointState)
+        joints.wait(timeout_s=60, what="state/joints at the gateway's role")
+        assert next(iter(gateway.get(f"{root}/info/urdf", timeout=10))).ok is not None
+        for _ in range(10):
+            for key in ("cmd/joints", "cmd/joint/left_elbow_joint", "state/ros1", "cmd/motors", "state/sim"):
+                gateway.put(f"{root}/{key}", "{}")
+            time.sleep(0.05)
+        wait_for(lambda: {f"{root}/cmd/joints", f"{root}/cmd/joint/left_elbow_joint", f"{root}/state/ros1"} <= set(got),
+                 10, "the gateway role's puts")
+        assert got.count(f"{root}/cmd/motors") == 0, "the ros1 role put a motor command past the bridge"
+        subscriber.undeclare()

@@ -1,6 +1,7 @@
 """`zensim up`: router, sim, bridge and viz as local processes, for a machine without Docker.
 
 `zensim up --unitree` runs the Unitree DDS adapter in place of the bridge (docs/unitree.md).
+`zensim up --ros1` adds the ROS 1 gateway, and a `roscore` when none answers at ROS_MASTER_URI (docs/ros.md).
 
 The same four services as compose.yaml, wired the same way: a router listens
 on one endpoint and the others join it as clients with multicast scouting off.
@@ -45,6 +46,8 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """Also run the web viewer."""
     unitree: bool = False
     """Run the Unitree DDS adapter (`zensim unitree`) in place of the bridge, with 500 Hz sim states: an SDK controller owns the motors."""
+    ros1: bool = False
+    """Also run the ROS 1 gateway (`zensim ros1`), and `roscore` when no master answers at ROS_MASTER_URI."""
     log_level: str = "INFO"
     """Python log level of `zensim up` itself (the services follow ZENSIM_LOG_LEVEL)."""
     secure_dir: str | None = None
@@ -72,6 +75,10 @@ def settings_of(name: str) -> type[msgspec.Struct]:
         from zensim.unitree.settings import UnitreeSettings
 
         return UnitreeSettings
+    if name == "ros1":
+        from zensim.ros1.settings import Ros1Settings
+
+        return Ros1Settings
     from zensim.viz.settings import VizSettings
 
     return VizSettings
@@ -100,13 +107,62 @@ def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir
     return env
 
 
+BARE_FLAGS = ("--unitree", "--ros1")
+
+
 def _bare_unitree_flag(argv: Sequence[str] | None) -> list[str]:
-    """`--unitree` alone means `--unitree true` (every other flag takes a value)."""
+    """`--unitree` (or `--ros1`) alone means `--unitree true` (every other flag takes a value)."""
     args = list(sys.argv[1:] if argv is None else argv)
-    for i, arg in enumerate(args):
-        if arg == "--unitree" and (i + 1 == len(args) or args[i + 1].startswith("--")):
+    for i in reversed(range(len(args))):
+        if args[i] in BARE_FLAGS and (i + 1 == len(args) or args[i + 1].startswith("--")):
             args.insert(i + 1, "true")
     return args
+
+
+ROS_MASTER_DEFAULT = "http://localhost:11311"
+
+
+def master_answers(uri: str, timeout_s: float = 1.0) -> bool:
+    """Whether a ROS master answers at `uri` (its xmlrpc getPid)."""
+    import socket
+    import xmlrpc.client
+
+    class Transport(xmlrpc.client.Transport):
+        def make_connection(self, host):  # noqa: ANN001, ANN201 - the stdlib's signature
+            connection = super().make_connection(host)
+            connection.timeout = timeout_s
+            return connection
+
+    try:
+        with xmlrpc.client.ServerProxy(uri, transport=Transport()) as master:
+            return master.getPid("/zensim_up")[0] == 1  # type: ignore[index]  # xmlrpc answers a list
+    except (OSError, socket.timeout, xmlrpc.client.Error):
+        return False
+
+
+def start_roscore(uri: str) -> subprocess.Popen | None:
+    """`roscore -p PORT` for a local ROS_MASTER_URI no master answers at; None when one answers.
+
+    Raises:
+        OSError: roscore is not installed, or the URI names another host.
+    """
+    from urllib.parse import urlsplit
+
+    if master_answers(uri):
+        logger.info("a ROS master answers at %s: using it", uri)
+        return None
+    parts = urlsplit(uri)
+    if parts.hostname not in ("localhost", "127.0.0.1", "::1"):
+        raise OSError(f"no ROS master answers at {uri}, and zensim up starts one only on this machine")
+    proc = subprocess.Popen(["roscore", "-p", str(parts.port or 11311)], start_new_session=True)
+    logger.info("started roscore on port %d (pid %d)", parts.port or 11311, proc.pid)
+    deadline = time.monotonic() + 30
+    while not master_answers(uri):
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            raise OSError(f"roscore did not answer at {uri}")
+        time.sleep(0.2)
+    return proc
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -126,7 +182,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if settings.secure_dir and not endpoint.startswith("tls/"):
         logger.error("with --secure-dir the router endpoint is tls/, not %s", endpoint)
         return 2
-    names = [name for name in SERVICES if name != "unitree" and (settings.viz or name != "viz")]
+    names = [name for name in SERVICES if name not in ("unitree", "ros1") and (settings.viz or name != "viz")]
+    roscore = None
+    if settings.ros1:
+        names.append("ros1")
+        try:
+            roscore = start_roscore(os.environ.get("ROS_MASTER_URI", ROS_MASTER_DEFAULT))
+        except OSError as exc:
+            logger.error("--ros1: %s (install ROS 1: docs/ros.md)", exc)
+            return 2
     if settings.unitree:
         # The bridge would command every motor at 100 Hz too; the SDK controller is the one commander.
         names[names.index("bridge")] = "unitree"
@@ -163,4 +227,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             proc.wait()
             exit_code = 1
         logger.info("%s exited with %s", name, proc.returncode)
+    if roscore is not None:
+        roscore.send_signal(signal.SIGINT)  # roscore stops its rosmaster and rosout on SIGINT
+        try:
+            roscore.wait(STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            os.killpg(roscore.pid, signal.SIGKILL)
+            roscore.wait()
+        logger.info("roscore exited with %s", roscore.returncode)
     return exit_code

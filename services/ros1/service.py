@@ -1,0 +1,480 @@
+"""The ROS 1 gateway's wiring: ROS topics and parameters on one side, zensim's Zenoh keys on the other.
+
+Reads:
+    {robot}/state/joints, state/odom, state/imu   -> JointState, Odometry + TF, Imu, Clock on ROS
+    {robot}/state/sim          SimStatus: a new `run_id` is a restarted sim (perhaps another robot):
+                               learn it again and set robot_description anew; a new `episode` is logged
+    {robot}/info/robot, info/urdf, info/mesh/{path}   the robot, its URDF and meshes
+    ROS: the per-joint Float64 command topics and the GUI's JointState topic
+Writes:
+    {robot}/cmd/joint/{joint}  one per accepted Float64 (the bridge clamps and slew-limits it)
+    {robot}/cmd/joints         JointTargets, one per accepted GUI message that moved a slider
+    {robot}/state/ros1         Ros1Status at status_rate_hz
+    {robot}/alive/ros1         liveliness token, once the robot is known
+    ROS: JointState, Odometry, Imu, TF, Clock; params robot_description and use_sim_time
+
+Outputs go out on zenoh's callback threads as each state arrives; inputs come in on rospy's
+threads and go to zenoh at once. Nothing queues in the gateway: rospy's publishers and subscribers
+keep a short queue each and drop the oldest, so a flood on one side never stalls the other.
+The rules (names, checks, the odometry's frames, mesh URLs) live in mapping.py.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import time
+import xmlrpc.client
+from typing import Any
+
+import msgspec
+import rospy
+import zenoh
+from geometry_msgs.msg import TransformStamped
+from nav_msgs.msg import Odometry as RosOdometry
+from rosgraph_msgs.msg import Clock
+from rospy.impl.registration import Registration, get_registration_listeners, get_topic_manager
+from sensor_msgs.msg import Imu as RosImu
+from sensor_msgs.msg import JointState as RosJointState
+from std_msgs.msg import Float64
+from tf2_msgs.msg import TFMessage
+
+from zensim.common.logs import FORMAT, RateLimitedLog
+from zensim.common.robot_info import fetch_robot
+from zensim.common.session import StartupError
+from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
+from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros1Status, SimStatus, encoding_of, topics
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
+
+from .mapping import GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, with_mesh_urls, xyzw
+from .meshserver import MeshServer
+from .settings import Ros1Settings
+
+logger = logging.getLogger("zensim.ros1")
+
+ROS_QUEUE = 10
+"""Depth of each rospy publisher's and subscriber's queue: the oldest message is dropped beyond it."""
+MASTER_CHECK_S = 1.0
+"""How often the gateway asks the master whether it is still the same one."""
+MASTER_TIMEOUT_S = 2.0
+"""Longest one question to the master may take."""
+
+
+def names_of(settings: Ros1Settings) -> RosNames:
+    s = settings
+    return RosNames.of(s.robot_id, s.namespace, s.joint_states_topic, s.command_topic, s.gui_topic, s.odom_topic,
+                       s.imu_topic, s.clock_topic, s.tf_topic)
+
+
+class Counters:
+    """What the status reports; updated under the gateway's lock."""
+
+    def __init__(self) -> None:
+        self.joint_states_published = 0
+        self.sim_time_s = 0.0
+        self.commands_received = 0
+        self.commands_forwarded = 0
+        self.last_command: float | None = None
+        self.description_updates = 0
+        self.master_restarts = 0
+        self.master_up = False
+
+
+class Gateway:
+    """The running gateway (see the module docstring)."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: RosNames,
+                 mesh_server: MeshServer | None) -> None:
+        self._session = session
+        self._keys = keys
+        self._settings = settings
+        self.names = names
+        self._mesh_server = mesh_server
+        self._lock = threading.Lock()
+        self.counters = Counters()
+        self.refusals = Refusals(logger, "ROS message")
+        self._state_log = RateLimitedLog(logger, 5.0)
+        self.sim_restarted = threading.Event()
+        """Set when state/sim comes from another sim run: the main loop learns the robot again."""
+        self._robot: RobotJoints | None = None
+        self._episode = ""
+        self._cap_bytes = 0
+        self._gui_changes = GuiChanges()
+        self._command_subscribers: list[rospy.Subscriber] = []
+        self._codecs: dict[type, Codec[Any]] = {JointState: Codec(JointState), Odometry: Codec(Odometry),
+                                                Imu: Codec(Imu), SimStatus: Codec(SimStatus)}
+        self._gates = {name: RateGate(settings.state_rate_hz) for name in ("joints", "odom", "imu")}
+        self._base_frame = settings.base_frame
+        # ROS side.
+        self._joint_states = rospy.Publisher(names.joint_states, RosJointState, queue_size=ROS_QUEUE)
+        self._odom = rospy.Publisher(names.odom, RosOdometry, queue_size=ROS_QUEUE)
+        self._imu = rospy.Publisher(names.imu, RosImu, queue_size=ROS_QUEUE)
+        self._clock = rospy.Publisher(names.clock, Clock, queue_size=ROS_QUEUE)
+        self._tf = rospy.Publisher(names.tf, TFMessage, queue_size=ROS_QUEUE)
+        self._gui = rospy.Subscriber(names.gui, RosJointState, self._on_gui, queue_size=ROS_QUEUE)
+        # Zenoh side.
+        self._targets = TypedPublisher.of(session, keys, topics.JOINT_TARGETS)
+        self._status = TypedPublisher.of(session, keys, topics.ROS1_STATUS)
+        self._scalar_encoding = zenoh.Encoding(encoding_of("msgpack"))
+        self._subscribers: list[zenoh.Subscriber] = []
+
+    def start(self, robot: RobotJoints) -> None:
+        """Take the robot, set robot_description, then start the flow of states."""
+        self.adopt(robot)
+        keys = self._keys
+        self._subscribers = [
+            self._session.declare_subscriber(keys.joints, self._on_joints),
+            self._session.declare_subscriber(keys.odom, self._on_odom),
+            self._session.declare_subscriber(keys.imu, self._on_imu),
+            self._session.declare_subscriber(keys.sim_status, self._on_sim_status),
+        ]
+
+    # --- the robot and its description ------------------------------------------------------
+
+    def adopt(self, robot: RobotJoints) -> None:
+        """Take `robot` (at start and after a sim restart): its command topics and robot_description."""
+        with self._lock:
+            previous = self._robot
+            self._robot = robot
+            self._cap_bytes = vector_cap_bytes(robot.names)
+            self.sim_restarted.clear()
+        if previous is None or previous.names != robot.names:
+            for subscriber in self._command_subscribers:
+                subscriber.unregister()
+            self._command_subscribers = [
+                rospy.Subscriber(self.names.command(joint), Float64, self._on_command, callback_args=joint,
+                                 queue_size=ROS_QUEUE)
+                for joint in robot.names
+            ]
+            with self._lock:
+                self._gui_changes.forget()
+        if self._mesh_server is not None:
+            self._mesh_server.serve_robot(robot.mesh_paths)
+        self.set_params()
+
+    def set_params(self) -> None:
+        """robot_description (the sim's URDF, meshes pointed at our http server) and use_sim_time."""
+        urdf = description_bytes(self._session, self._keys.urdf, self._settings.info_timeout_s).decode("utf-8", errors="replace")
+        if self._mesh_server is not None:
+            urdf = with_mesh_urls(urdf, self.mesh_url())
+        if self._settings.set_use_sim_time:
+            rospy.set_param("/use_sim_time", True)
+        rospy.set_param(self._settings.description_param, urdf)
+        with self._lock:
+            self.counters.description_updates += 1
+        logger.info("%s set: %d characters", self._settings.description_param, len(urdf))
+
+    def mesh_url(self) -> str:
+        if self._mesh_server is None:
+            return ""
+        host = self._settings.mesh_http_host or self._settings.mesh_http_bind
+        if host in ("0.0.0.0", "::", ""):
+            host = socket.gethostname()
+        if ":" in host:
+            host = f"[{host}]"
+        return f"http://{host}:{self._mesh_server.port}"
+
+    # --- zensim -> ROS (zenoh threads) --------------------------------------------------------
+
+    def _decode(self, sample: zenoh.Sample, message_type: type):
+        try:
+            return decode_input(sample, self._codecs[message_type], self._cap_bytes)
+        except DecodeError as exc:
+            self._state_log.warning("ignoring a bad %s on %s: %s", message_type.__name__, sample.key_expr, exc)
+            return None
+
+    def _on_joints(self, sample: zenoh.Sample) -> None:
+        state = self._decode(sample, JointState)
+        robot = self._robot
+        if state is None or robot is None or not self._gates["joints"].due(state.sim_time_s):
+            return
+        if len(state.q) != len(robot.names):
+            self._state_log.warning("state/joints has %d positions for %d joints: not published",
+                                    len(state.q), len(robot.names))
+            return
+        stamp = rospy.Time.from_sec(state.sim_time_s)
+        message = RosJointState(name=list(robot.names), position=state.q, velocity=state.dq, effort=state.tau)
+        message.header.stamp = stamp
+        self._clock.publish(Clock(clock=stamp))
+        self._joint_states.publish(message)
+        with self._lock:
+            self.counters.joint_states_published += 1
+            self.counters.sim_time_s = state.sim_time_s
+
+    def _on_odom(self, sample: zenoh.Sample) -> None:
+        odom = self._decode(sample, Odometry)
+        if odom is None or not self._gates["odom"].due(odom.sim_time_s):
+            return
+        p3d = P3dOdometry.of(odom)
+        stamp = rospy.Time.from_sec(odom.sim_time_s)
+        world = self._settings.world_frame
+        message = RosOdometry()
+        message.header.stamp, message.header.frame_id, message.child_frame_id = stamp, world, self._base_frame
+        pose, twist = message.pose.pose, message.twist.twist
+        pose.position.x, pose.position.y, pose.position.z = p3d.position
+        o = pose.orientation
+        o.x, o.y, o.z, o.w = p3d.orientation_xyzw
+        twist.linear.x, twist.linear.y, twist.linear.z = p3d.linear
+        twist.angular.x, twist.angular.y, twist.angular.z = p3d.angular
+        self._odom.publish(message)
+        transform = TransformStamped()
+        transform.header.stamp, transform.header.frame_id, transform.child_frame_id = stamp, world, self._base_frame
+        t = transform.transform
+        t.translation.x, t.translation.y, t.translation.z = p3d.position
+        t.rotation = o
+        self._tf.publish(TFMessage(transforms=[transform]))
+
+    def _on_imu(self, sample: zenoh.Sample) -> None:
+        imu = self._decode(sample, Imu)
+        if imu is None or not self._gates["imu"].due(imu.sim_time_s):
+            return
+        message = RosImu()
+        message.header.stamp = rospy.Time.from_sec(imu.sim_time_s)
+        message.header.frame_id = self._settings.imu_frame
+        o = message.orientation
+        o.x, o.y, o.z, o.w = xyzw(imu.quat_wxyz)
+        message.angular_velocity.x, message.angular_velocity.y, message.angular_velocity.z = imu.gyro
+        a = message.linear_acceleration
+        a.x, a.y, a.z = imu.accel
+        self._imu.publish(message)
+
+    def _on_sim_status(self, sample: zenoh.Sample) -> None:
+        status = self._decode(sample, SimStatus)
+        robot = self._robot
+        if status is None or robot is None:
+            return
+        if status.run_id and status.run_id != robot.run_id and not self.sim_restarted.is_set():
+            logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
+            self.sim_restarted.set()
+        if status.episode and status.episode != self._episode:
+            if self._episode:
+                # The GUI's sliders that did not move since are not sent again (GuiChanges), so the
+                # sim's reset pose stands until someone moves a slider or sends a command.
+                logger.info("new sim episode (mode %s): the robot is in its default pose", status.mode)
+            self._episode = status.episode
+
+    # --- ROS -> zensim (rospy threads) --------------------------------------------------------
+
+    def _received(self) -> RobotJoints | None:
+        with self._lock:
+            self.counters.commands_received += 1
+            return self._robot
+
+    def _forwarded(self) -> None:
+        with self._lock:
+            self.counters.commands_forwarded += 1
+            self.counters.last_command = time.monotonic()
+
+    def _on_command(self, message: Float64, joint: str) -> None:
+        robot = self._received()
+        topic = self.names.command(joint)
+        try:
+            if robot is None:
+                raise InputError("the robot is not known yet")
+            value = robot.check_position(joint, message.data)
+        except (InputError, TypeError) as exc:
+            self.refusals.refuse(topic, str(exc))
+            return
+        self._session.put(self._keys.joint_target(joint), msgspec.msgpack.encode(value),
+                          encoding=self._scalar_encoding)
+        self._forwarded()
+
+    def _on_gui(self, message: RosJointState) -> None:
+        robot = self._received()
+        try:
+            if robot is None:
+                raise InputError("the robot is not known yet")
+            targets = robot.joint_targets(list(message.name), list(message.position))
+        except (InputError, TypeError) as exc:
+            self.refusals.refuse(self.names.gui, str(exc))
+            return
+        with self._lock:  # rospy calls back on one thread per publisher: two GUIs, two threads
+            changed = self._gui_changes.changed(targets)
+        if changed is not None:
+            self._targets.put(changed)
+            self._forwarded()
+
+    # --- the master ------------------------------------------------------------------------------
+
+    def watch_master(self, stop: threading.Event) -> None:
+        """Ask the master's pid every MASTER_CHECK_S; a new pid is a restarted master: register again.
+
+        rospy registers a node's topics once, at start; a restarted roscore knows nothing of them.
+        """
+        uri = rosmaster_uri()
+        master = xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport())
+        known_pid = None
+        down_log = RateLimitedLog(logger, 10.0)
+        while not stop.wait(MASTER_CHECK_S):
+            try:
+                answer: Any = master.getPid(rospy.get_name())  # xmlrpc: [code, message, pid]
+                code, _, pid = answer
+                up = code == 1
+            except (OSError, xmlrpc.client.Error) as exc:
+                up, pid = False, None
+                down_log.warning("the ROS master at %s does not answer: %s", uri, exc)
+            with self._lock:
+                self.counters.master_up = up
+            if not up:
+                continue
+            if known_pid is not None and pid != known_pid:
+                logger.info("the ROS master restarted (pid %s): registering again", pid)
+                try:
+                    self.register_again()
+                except (LookupError, OSError) as exc:
+                    logger.warning("could not register with the new master yet: %s", exc)
+                    continue
+                with self._lock:
+                    self.counters.master_restarts += 1
+            known_pid = pid
+
+    def register_again(self) -> None:
+        """Tell the (new) master every topic of this node, and set the parameters again."""
+        manager = get_topic_manager()
+        listeners = get_registration_listeners()
+        for name, data_type in manager.get_publications():
+            listeners.notify_added(name, data_type, Registration.PUB)
+        for name, data_type in manager.get_subscriptions():
+            listeners.notify_added(name, data_type, Registration.SUB)
+        self.set_params()
+
+    # --- status ------------------------------------------------------------------------------------
+
+    def publish_status(self, seq: int, rate_hz: float) -> None:
+        with self._lock:
+            c = self.counters
+            status = Ros1Status(
+                seq=seq, master_uri=rosmaster_uri(), master_up=c.master_up, master_restarts=c.master_restarts,
+                joint_states_published=c.joint_states_published, joint_states_rate_hz=rate_hz,
+                sim_time_s=c.sim_time_s, commands_received=c.commands_received,
+                commands_forwarded=c.commands_forwarded, rejected=self.refusals.count,
+                last_error=self.refusals.last_error,
+                command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
+                description_updates=c.description_updates, mesh_url=self.mesh_url(),
+            )
+        self._status.put(status)
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        self._targets.undeclare()
+        self._status.undeclare()
+
+
+class _TimeoutTransport(xmlrpc.client.Transport):
+    """xmlrpc over http that gives up after MASTER_TIMEOUT_S (a frozen master must not hang the watch)."""
+
+    def make_connection(self, host):  # noqa: ANN001, ANN201 - the stdlib's signature
+        connection = super().make_connection(host)
+        connection.timeout = MASTER_TIMEOUT_S
+        return connection
+
+
+def rosmaster_uri() -> str:
+    import rosgraph
+
+    return rosgraph.get_master_uri()
+
+
+def description_bytes(session: zenoh.Session, key: str, timeout_s: float) -> bytes:
+    """The first reply of a description queryable (info/urdf, info/mesh/...), size-capped.
+
+    Raises:
+        LookupError: no reply within `timeout_s`, an error reply, or one over the cap.
+    """
+    for reply in session.get(key, timeout=timeout_s):
+        if reply.ok is None:
+            raise LookupError(f"{key}: {error_text(reply.err)}")
+        try:
+            return read_payload(reply.ok, DESCRIPTION_CAP_BYTES)[0]
+        except DecodeError as exc:
+            raise LookupError(f"{key}: {exc}") from None
+    raise LookupError(f"no reply on {key} within {timeout_s} s")
+
+
+def run(session: zenoh.Session, settings: Ros1Settings, stop: threading.Event) -> int:
+    """Learn the robot, join the ROS graph, map until `stop` is set.
+
+    Returns:
+        The process exit code.
+    """
+    keys = Keys(settings.robot_id)
+    try:
+        names = names_of(settings)
+    except ValueError as exc:
+        raise StartupError(str(exc)) from None
+    mesh_server = None
+    if settings.mesh_urls == "http":
+        try:
+            mesh_server = MeshServer(settings.mesh_http_bind, settings.mesh_http_port,
+                                     lambda path: description_bytes(session, keys.mesh(path), settings.info_timeout_s))
+        except OSError as exc:
+            raise StartupError(f"cannot serve meshes on {settings.mesh_http_bind}:{settings.mesh_http_port}: "
+                               f"{exc.strerror or exc}") from None
+    try:
+        return _serve(session, keys, settings, names, mesh_server, stop)
+    finally:
+        if mesh_server is not None:
+            mesh_server.close()
+
+
+def _learn_robot(session: zenoh.Session, keys: Keys, settings: Ros1Settings, stop: threading.Event) -> RobotJoints | None:
+    return fetch_robot(session, keys, settings.info_timeout_s, stop, RobotJoints.from_info, logger)
+
+
+def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: RosNames,
+           mesh_server: MeshServer | None, stop: threading.Event) -> int:
+    logger.info("asking the sim on %s", keys.robot_info)
+    robot = _learn_robot(session, keys, settings, stop)
+    if robot is None:
+        return 0
+    node = settings.node_name or f"zensim_ros1_{settings.robot_id.replace('-', '_')}"
+    logger.info("joining the ROS graph as /%s, master %s", node, rosmaster_uri())
+    rospy.init_node(node, disable_signals=True)
+    # init_node points the root logger at a file in ROS_HOME/log: ours go to stderr like every service's.
+    logging.basicConfig(level=settings.log_level.upper(), format=FORMAT, force=True)
+    if logger.getEffectiveLevel() > logging.DEBUG:
+        logging.getLogger("rospy").setLevel(logging.WARNING)  # a line per connection otherwise
+    if mesh_server is not None:
+        mesh_server.start()
+    gateway = Gateway(session, keys, settings, names, mesh_server)
+    try:
+        gateway.start(robot)
+    except LookupError as exc:
+        gateway.close()
+        rospy.signal_shutdown("no robot description")
+        raise StartupError(f"cannot read the robot's URDF: {exc}") from None
+    watcher = threading.Thread(target=gateway.watch_master, args=(stop,), name="ros-master", daemon=True)
+    watcher.start()
+    token = session.liveliness().declare_token(keys.alive("ros1"))
+    logger.info("ros1 gateway up: %d joints; %s, %s, %s%s", len(robot.names), names.joint_states, names.gui,
+                names.command("{joint}"), f"; meshes at {gateway.mesh_url()}" if mesh_server else "")
+    period_s = 1.0 / settings.status_rate_hz
+    seq = 0
+    last_count, last_time = 0, time.monotonic()
+    try:
+        while not stop.wait(period_s):
+            if gateway.sim_restarted.is_set():
+                robot = _learn_robot(session, keys, settings, stop)
+                if robot is None:
+                    break
+                try:
+                    gateway.adopt(robot)
+                    logger.info("robot from the restarted sim: %d joints", len(robot.names))
+                except LookupError as exc:
+                    logger.warning("the restarted sim's URDF: %s; asking again", exc)
+                    gateway.sim_restarted.set()
+            now = time.monotonic()
+            count = gateway.counters.joint_states_published
+            gateway.publish_status(seq, (count - last_count) / (now - last_time))
+            last_count, last_time = count, now
+            seq += 1
+    finally:
+        token.undeclare()
+        gateway.close()
+        rospy.signal_shutdown("zensim ros1 stopping")
+    c = gateway.counters
+    logger.info("%d ROS commands read, %d forwarded, %d rejected; %d joint states published",
+                c.commands_received, c.commands_forwarded, gateway.refusals.count, c.joint_states_published)
+    return 0
