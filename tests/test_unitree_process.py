@@ -266,7 +266,7 @@ def test_zensim_up_unitree_serves_an_sdk_controller(tmp_path, robot_id):
 def test_every_sim_state_becomes_one_lowstate(rig, zsession):
     """Each of the sim's 500 Hz states comes out as one LowState_: pairing a state/joints with the
     state/imu of the same instant loses none, however the machine schedules the adapter's threads
-    (with a callback thread per key, a loaded machine lost 20-70 % of them)."""
+    (with a callback thread per key, a loaded machine lost up to 70 % of them)."""
     _sim, _adapter, _client, keys = rig
     joints = Latest(zsession, keys.joints, JointState)
     status = Latest(zsession, keys.unitree_status, UnitreeStatus)
