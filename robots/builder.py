@@ -253,9 +253,14 @@ def _prepare(files: RobotFiles, mode: Mode) -> _Prepared:
             geom.friction = [model_cfg.foot_friction, geom.friction[1], geom.friction[2]]
 
     world = spec.worldbody
+    # The fixed mode is a robot on a stand: welded at the seed's classic height (0.79 m for the G1),
+    # where users expect every joint to move through its whole range. There the floor only gets in
+    # the way (the G1's straight legs reach 2.3 mm below 0.79 m, and a welded base pushes back with
+    # any force), so the floor is drawn but collides with nothing; the height stays the one users know.
+    floor_bits = FLOOR_BIT | ROBOT_BIT if mode == "floating" else 0
     world.add_geom(name=FLOOR_NAME, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05],
-                   friction=[model_cfg.floor_friction, 0.005, 0.0001], contype=FLOOR_BIT | ROBOT_BIT,
-                   conaffinity=FLOOR_BIT | ROBOT_BIT, rgba=[0.5, 0.55, 0.6, 1.0])
+                   friction=[model_cfg.floor_friction, 0.005, 0.0001], contype=floor_bits,
+                   conaffinity=floor_bits, rgba=[0.5, 0.55, 0.6, 1.0])
     world.add_light(name="sun", pos=[0.0, 0.0, 4.0], dir=[0.0, 0.0, -1.0], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
 
     spec.body(imu_link).add_site(name=model_cfg.imu_site)

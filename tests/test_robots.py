@@ -7,6 +7,8 @@ Bounds below are measured figures with margin; docs/robots.md has the measuremen
 from __future__ import annotations
 
 import fnmatch
+import re
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,6 +21,8 @@ from zensim.robots import BUNDLED_DIR, bundled_robots, robot_files
 from zensim.robots.builder import Robot, build
 from zensim.robots.cli import main as cli_main
 from zensim.robots.control import ControlConfigError, load_control, unmatched_patterns
+from zensim.robots.description import parse_urdf
+from zensim.robots.unitree_g1.derive import read_stl
 from zensim.sim.mjdata import apply_motor_command, base_tilt_rad, read_base, read_imu, reset, warnings_of
 
 # Standing in the squat, 30 s, default gains (measured: settled pelvis 0.7249-0.7255 m, tilt <= 0.011
@@ -119,7 +123,8 @@ class TestCompile:
     @pytest.mark.parametrize("mode", ["floating", "fixed"])
     def test_our_g1(self, mode: str, mujoco_messages: list[str], capfd: pytest.CaptureFixture[str]) -> None:
         robot = _check_compiles_and_steps(robot_files("g1"), mode, mujoco_messages, capfd)
-        assert robot.nu == 29 and robot.mesh_files == {}
+        assert robot.nu == 29 and len(robot.mesh_files) == 36  # the visual shells, served to viewers
+        assert robot.model.nmesh == 0  # collisions are primitives: MuJoCo compiles no mesh
         assert robot.model.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST
         assert (robot.model.opt.gravity[2] < 0) == (mode == "floating")
 
@@ -204,6 +209,63 @@ class TestFolders:
             np.testing.assert_allclose(link.inertial.inertia, o.inertial.inertia)
 
 
+def _model_bytes(model: mujoco.MjModel) -> bytes:
+    buffer = np.empty(mujoco.mj_sizeModel(model), np.uint8)
+    mujoco.mj_saveModel(model, None, buffer)
+    return buffer.tobytes()
+
+
+class TestVisualMeshes:
+    """The bundled G1 draws Unitree's own (decimated) shells; its physics is the primitives' alone."""
+
+    def test_every_link_is_drawn_with_a_shipped_mesh(self) -> None:
+        files = robot_files("g1")
+        description = parse_urdf(files.urdf.read_text())
+        drawn = {link for link, visuals in description.visuals.items() if any(v.kind == "mesh" for v in visuals)}
+        assert drawn == {link for link in description.links if description.visuals.get(link)}
+        # Every moving link and the pelvis carry a shell; sensor frames carry none.
+        assert {j.child for j in description.actuated_joints} | {"pelvis", "head_link"} <= drawn
+        for filename in {v.filename for vs in description.visuals.values() for v in vs}:
+            path = files.urdf.parent / filename
+            assert path.is_file(), filename
+            (count,) = struct.unpack_from("<I", path.read_bytes(), 80)
+            assert path.stat().st_size == 84 + 50 * count > 84, filename  # a binary STL with triangles
+
+    @pytest.mark.parametrize("mode", ["floating", "fixed"])
+    def test_the_visuals_leave_the_physics_bit_identical(self, tmp_path: Path, mode: str) -> None:
+        """The same URDF with every <visual> removed compiles to the same model and the same motion."""
+        files = robot_files("g1")
+        text = files.urdf.read_text()
+        assert text.count('<mesh filename="meshes/') >= 30
+        stripped = tmp_path / "g1_29dof.urdf"
+        stripped.write_text(re.sub(r"\s*<visual>.*?</visual>", "", text, flags=re.S))
+        assert "<visual>" not in stripped.read_text()
+        with_visuals = build(files, mode)  # type: ignore[arg-type]
+        without = build(robot_files("g1", urdf=stripped), mode)  # type: ignore[arg-type]
+        assert with_visuals.model.nmesh == 0  # MuJoCo loads no visual mesh: nothing to compile
+        # MuJoCo colours a link's collision geoms with its visual's material: the one field a
+        # renderer alone reads. Everything else, byte for byte.
+        without.model.geom_rgba[:] = with_visuals.model.geom_rgba
+        assert _model_bytes(with_visuals.model) == _model_bytes(without.model)
+        runs = []
+        for robot in (with_visuals, without):
+            data = mujoco.MjData(robot.model)
+            reset(robot, data)
+            _step(robot, data, 2.0)
+            runs.append(np.concatenate([data.qpos, data.qvel, data.qfrc_actuator]))
+        assert np.array_equal(runs[0], runs[1])
+
+    def test_decimated_meshes_keep_the_official_shape(self, official_g1_dir: Path) -> None:
+        """Each shipped mesh fills the official mesh's bounding box to within 2 mm on every side."""
+        ours = robot_files("g1").urdf.parent / "meshes"
+        for path in sorted(ours.glob("*.STL")):
+            official = official_g1_dir / "meshes" / path.name
+            mine, theirs = read_stl(path), read_stl(official)
+            np.testing.assert_allclose(mine.min(axis=0), theirs.min(axis=0), atol=0.002, err_msg=path.name)
+            np.testing.assert_allclose(mine.max(axis=0), theirs.max(axis=0), atol=0.002, err_msg=path.name)
+            assert len(mine) < len(theirs), path.name
+
+
 class TestStanding:
     def _check(self, figures: dict[str, float]) -> None:
         assert HEIGHT_BOUNDS_M[0] < figures["h_min"] and figures["h_max"] < HEIGHT_BOUNDS_M[1], figures
@@ -245,6 +307,51 @@ class TestFixedMode:
             error = np.abs(data.qpos[robot.qpos_adr] - target)
             assert error.max() < TRACK_TOL_RAD, dict(zip(robot.joint_names, error.round(4)))
             np.testing.assert_allclose(data.xpos[robot.base_body_id], [0, 0, 0.79])
+        assert warnings_of(data) == {}
+
+    @pytest.mark.parametrize("which", ["ours", "official"])
+    def test_every_joint_sweeps_its_whole_range_without_touching_the_floor(self, which: str, request) -> None:
+        """The SDK examples' first move, a ramp to the zero pose, then each joint through its full range.
+
+        Welded at 0.79 m, the straight legs reach 2.3 mm below the base height's floor: before the
+        fixed mode stopped colliding with the floor, the zero pose pressed the feet in with 8 contacts
+        and the ankles swung through 22 % of their amplitude.
+        """
+        urdf = None if which == "ours" else request.getfixturevalue("official_g1_dir") / "g1_29dof.urdf"
+        robot = build(robot_files("g1", urdf=urdf), "fixed")
+        model, data = robot.model, mujoco.MjData(robot.model)
+        floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+        reset(robot, data)
+        zeros = np.zeros(robot.nu)
+        touches: list[tuple[str, float]] = []
+
+        def follow(path: np.ndarray, seconds: float, moving: str) -> None:
+            """Ramp the targets along `path` (rows of joint targets) over `seconds`, then hold 1 s."""
+            steps = round(seconds / model.opt.timestep)
+            for i in range(steps + round(1.0 / model.opt.timestep)):
+                s = min(i / steps, 1.0) * (len(path) - 1)
+                k = min(int(s), len(path) - 2)
+                target = path[k] + (s - k) * (path[k + 1] - path[k])
+                apply_motor_command(robot, data, target, zeros, robot.kp, robot.kd, zeros)
+                mujoco.mj_step(model, data)
+                contacts = data.contact[:data.ncon]
+                if np.any((contacts.geom1 == floor) | (contacts.geom2 == floor)):
+                    touches.append((moving, data.time))
+
+        follow(np.array([data.qpos[robot.qpos_adr], zeros]), 2.0, "ramp to zero")
+        np.testing.assert_allclose(data.qpos[robot.qpos_adr], 0.0, atol=0.01)
+        for j, name in enumerate(robot.joint_names):
+            lo, hi = zeros.copy(), zeros.copy()
+            lo[j], hi[j] = robot.q_min[j], robot.q_max[j]
+            reached = []
+            for path in (np.array([zeros, lo]), np.array([lo, hi]), np.array([hi, zeros])):
+                follow(path, 1.0, name)
+                reached.append(data.qpos[robot.qpos_adr[j]])
+            # The sweep is real: the joint got to both ends of its range (kp 50, no gravity, no floor).
+            assert reached[0] == pytest.approx(robot.q_min[j], abs=0.02), name
+            assert reached[1] == pytest.approx(robot.q_max[j], abs=0.02), name
+        assert touches == [], f"floor contacts while welded: first {touches[:3]}, {len(touches)} steps in all"
+        np.testing.assert_allclose(data.xpos[robot.base_body_id], [0, 0, 0.79])
         assert warnings_of(data) == {}
 
     def test_command_length_is_checked(self) -> None:

@@ -91,6 +91,9 @@ class TestVizPage:
         for verb in ("reset", "pause", "resume", "step"):
             assert browser.eval(f"!!document.getElementById('btn-{verb}')")
         assert browser.eval("document.getElementById('mode').value") == "fixed"
+        # The bundled G1 is drawn with its shells: every visual mesh it names, fetched from the sim.
+        shells = len(list((REPO / "robots" / "unitree_g1" / "meshes").glob("*.STL")))
+        assert f", {shells} meshes (" in stack.viz.log() and shells >= 30, stack.viz.log()[-2000:]
         # Let a few frames draw after the status panel filled, then take the picture.
         frames = browser.eval("zensim.framesApplied")
         browser.wait(f"zensim.framesApplied > {frames + 2}", 30, "more frames drawn")

@@ -2,25 +2,33 @@
 
 A developer tool, run by hand (the product never reads the official files):
 
+    pip install fast-simplification       # build time only: decimates the visual meshes
     python robots/unitree_g1/derive.py /path/to/g1_description/g1_29dof.urdf \
-        > robots/unitree_g1/g1_29dof.urdf
+        --meshes robots/unitree_g1/meshes > robots/unitree_g1/g1_29dof.urdf
 
-Why: the official model needs 19 MB of STL meshes that a fresh machine does not have. This script keeps
-the real robot's figures verbatim (joints, limits, masses, inertias, sensor frames) and replaces each
-mesh with one primitive sized from that mesh's bounding box in its link frame, so the robot still reads
-as a humanoid in a viewer and still stands on the same feet:
+Why: the official model collides with 19 MB of detailed STL meshes (slow contacts, a slow compile).
+This script keeps the real robot's figures verbatim (joints, limits, masses, inertias, sensor frames)
+and gives each link two geometries:
+
+- visual: Unitree's own mesh, decimated (fast-simplification's quadric decimation, the strongest
+  reduction whose surface stays within DECIMATION_TOLERANCE_M of the original both ways, at the 99th
+  percentile of sampled points), so the robot looks like a G1 at a sixth of the bytes;
+- collision: one primitive sized from that mesh's bounding box in its link frame, so it stands on the
+  same feet and steps fast:
 
 - limb segments ("bones": thigh, shin, upper arm, forearm) become cylinders from the link origin to
   the child joint, with the radius that covers most mesh vertices around that axis;
 - the head becomes a sphere; everything else a box equal to the mesh bounding box;
 - each foot is the bounding box of the official foot mesh, whose sole (z = -0.035 in the ankle roll
   frame) is also where the official model's foot contact spheres end, so pelvis heights match;
-- decorative fixed links of 1 g (pelvis contour, logo, waist support) are dropped and their boxes
-  folded into the parent's geometry where they give it its shape (the pelvis).
+- decorative fixed links of 1 g (pelvis contour, logo, waist support) are dropped: their collision
+  boxes are folded into the parent's where they give it its shape (the pelvis), their visual meshes
+  become extra visuals of the parent link, placed through the dropped fixed joint.
 
 The official URDF is read through zensim.robots.description (the project's one URDF reader); its
-<inertial> and <joint> elements are copied verbatim with the standard library's XML writer, and a
-30-line STL reader stands in for trimesh.
+<inertial> and <joint> elements are copied verbatim with the standard library's XML writer. A 30-line
+STL reader sizes the primitives (as before the meshes were shipped: the collisions stay exactly the
+same); trimesh and fast-simplification decimate the visuals.
 """
 
 from __future__ import annotations
@@ -53,6 +61,14 @@ BONES: dict[str, str] = {
     "right_elbow_link": "right_wrist_roll_joint",
 }
 SPHERES: frozenset[str] = frozenset({"head_link"})
+DECIMATION_TOLERANCE_M = 0.001
+"""Largest deviation (99th percentile, both ways) of a decimated visual mesh from Unitree's original."""
+DECIMATION_STEPS = tuple(round(0.5 + 0.05 * i, 2) for i in range(10))
+"""Reductions tried (fraction of triangles removed), 0.5 to 0.95."""
+DECIMATION_AGGRESSIVENESS = (3, 7)
+"""fast-simplification's `agg` values tried: 3 keeps thin parts that 7 (its default) collapses."""
+SURFACE_SAMPLES = 3000
+"""Points sampled on each surface to measure the deviation."""
 
 
 def read_stl(path: Path) -> np.ndarray:
@@ -129,9 +145,85 @@ def primitive(name: str, verts: np.ndarray, child_joint_xyz: np.ndarray | None) 
     return f'<box size="{_fmt(size)}"/>', centre, np.zeros(3)
 
 
-def derive(official_urdf: Path) -> str:
-    """Return the text of the project's G1 URDF derived from the official one."""
+def write_stl(path: Path, vertices: np.ndarray, faces: np.ndarray, header: str) -> None:
+    """Write a binary STL (float32 vertices, unit face normals, an ASCII header of up to 80 bytes)."""
+    tri = vertices[faces].astype("<f4")
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    records = np.zeros(len(faces), np.dtype([("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")]))
+    records["normal"], records["v"] = normals, tri
+    head = header.encode("ascii")[:80].ljust(80, b" ")
+    path.write_bytes(head + struct.pack("<I", len(faces)) + records.tobytes())
+
+
+def decimate(source: Path, target: Path) -> tuple[int, int, float]:
+    """Write `source` decimated as far as DECIMATION_TOLERANCE_M allows to `target` (binary STL).
+
+    Deterministic: fixed reductions, fixed sampling seeds. Needs trimesh and fast-simplification
+    (build time only; the product reads STL files, never these libraries).
+
+    Returns:
+        Triangles before, triangles after, and the deviation reached (m).
+    """
+    import fast_simplification  # noqa: PLC0415 (a developer's tool, not a dependency of the product)
+    import trimesh  # noqa: PLC0415
+
+    mesh = trimesh.load(source, file_type="stl")
+    samples, _ = trimesh.sample.sample_surface(mesh, SURFACE_SAMPLES, seed=0)
+    best = (mesh.vertices, mesh.faces, 0.0)
+    for agg in DECIMATION_AGGRESSIVENESS:
+        for reduction in DECIMATION_STEPS:
+            vertices, faces = fast_simplification.simplify(mesh.vertices, mesh.faces, target_reduction=reduction, agg=agg)
+            if len(faces) >= len(best[1]):
+                continue
+            simplified = trimesh.Trimesh(vertices, faces, process=False)
+            _, lost, _ = trimesh.proximity.closest_point(simplified, samples)  # original -> simplified
+            back, _ = trimesh.sample.sample_surface(simplified, SURFACE_SAMPLES, seed=0)
+            _, added, _ = trimesh.proximity.closest_point(mesh, back)  # simplified -> original
+            deviation = float(max(np.percentile(lost, 99), np.percentile(added, 99)))
+            if deviation <= DECIMATION_TOLERANCE_M:
+                best = (vertices, faces, deviation)
+    vertices, faces, deviation = best
+    write_stl(target, np.asarray(vertices), np.asarray(faces),
+              f"unitree_ros d6f13aa {source.name}, decimated by zensim derive.py (BSD-3-Clause, Unitree)")
+    return len(mesh.faces), len(faces), deviation
+
+
+def _visual_xml(filename: str, origin: np.ndarray, material: str) -> str:
+    xyz, rpy = origin[:3, 3], matrix_to_rpy(origin[:3, :3])
+    return (f'    <visual><origin xyz="{_fmt(xyz)}" rpy="{_fmt(rpy)}"/>'
+            f'<geometry><mesh filename="{filename}"/></geometry><material name="{material}"/></visual>')
+
+
+def mesh_visuals(official_urdf: Path, meshes_out: Path) -> dict[str, list[str]]:
+    """Decimate every visual mesh into `meshes_out`; return the <visual> lines per kept link.
+
+    A dropped link's visuals go to its parent, placed through the fixed joint between them.
+    """
     description = load_description(official_urdf)
+    joint_of = {j.child: j for j in description.joints}
+    meshes_out.mkdir(parents=True, exist_ok=True)
+    lines: dict[str, list[str]] = {}
+    for link, visuals in description.visuals.items():
+        owner, placement = link, np.eye(4)
+        if link in DROPPED_LINKS:
+            joint = joint_of[link]
+            owner, placement = joint.parent, joint.origin
+        for visual in visuals:
+            if visual.kind != "mesh":
+                continue
+            name = Path(visual.filename).name
+            before, after, deviation = decimate(official_urdf.parent / visual.filename, meshes_out / name)
+            print(f"{name}: {before} -> {after} triangles, deviation {deviation * 1e3:.2f} mm", file=sys.stderr)
+            lines.setdefault(owner, []).append(
+                _visual_xml(f"meshes/{name}", placement @ visual.origin, visual.material or "white"))
+    return lines
+
+
+def derive(official_urdf: Path, meshes_out: Path) -> str:
+    """Return the text of the project's G1 URDF derived from the official one; write its visual meshes."""
+    description = load_description(official_urdf)
+    visual_lines = mesh_visuals(official_urdf, meshes_out)
     joint_xyz = {j.name: j.origin[:3, 3] for j in description.joints}
     verts_by_link: dict[str, np.ndarray] = {}
     for name, visuals in description.visuals.items():
@@ -146,8 +238,9 @@ def derive(official_urdf: Path) -> str:
     out = [
         "<?xml version=\"1.0\"?>",
         "<!-- Generated by robots/unitree_g1/derive.py from Unitree's g1_29dof.urdf (unitree_ros d6f13aa,",
-        "     robots/g1_description, BSD-3-Clause, see LICENSE). Figures are the official ones; the geometry",
-        "     is the project's own primitives sized from the official meshes. Do not edit by hand. -->",
+        "     robots/g1_description, BSD-3-Clause, see LICENSE). Figures are the official ones; visuals are",
+        "     the official meshes, decimated; collisions are the project's own primitives sized from them.",
+        "     Do not edit by hand. -->",
         f'<robot name="{root.get("name")}">',
         '  <material name="dark"><color rgba="0.2 0.2 0.2 1"/></material>',
         '  <material name="white"><color rgba="0.7 0.7 0.7 1"/></material>',
@@ -162,9 +255,8 @@ def derive(official_urdf: Path) -> str:
             if name in verts_by_link:
                 bone_xyz = joint_xyz[BONES[name]] if name in BONES else None
                 geom, xyz, rpy = primitive(name, verts_by_link[name], bone_xyz)
-                material = description.visuals[name][0].material or "white"
                 origin = f'<origin xyz="{_fmt(xyz)}" rpy="{_fmt(rpy)}"/>'
-                out.append(f"    <visual>{origin}<geometry>{geom}</geometry><material name=\"{material}\"/></visual>")
+                out.extend(visual_lines.get(name, []))
                 out.append(f"    <collision>{origin}<geometry>{geom}</geometry></collision>")
             out.append("  </link>")
         elif element.tag == "joint" and element.find("child").get("link") not in DROPPED_LINKS:
@@ -174,11 +266,12 @@ def derive(official_urdf: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command line: derive.py OFFICIAL_URDF > g1_29dof.urdf."""
+    """Command line: derive.py OFFICIAL_URDF --meshes MESHES_DIR > g1_29dof.urdf."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("official_urdf", type=Path)
+    parser.add_argument("--meshes", type=Path, required=True, help="folder for the decimated visual meshes")
     args = parser.parse_args(argv)
-    sys.stdout.write(derive(args.official_urdf.resolve()))
+    sys.stdout.write(derive(args.official_urdf.resolve(), args.meshes))
     return 0
 
 

@@ -13,13 +13,22 @@ Writes:
     {robot}/state/unitree             UnitreeStatus at status_rate_hz
     {robot}/alive/unitree             liveliness token, once the robot is known
 
-A DDS thread waits on both DDS readers; zenoh's callback threads build LowState_. Nothing queues:
-a LowCmd_ is forwarded as soon as it is read, a LowState_ written as soon as its pair is complete.
+A DDS thread waits on both DDS readers; one zenoh callback thread (one subscriber on `state/*`)
+builds LowState_. Nothing queues: a LowCmd_ is forwarded as soon as it is read, a LowState_ written
+as soon as its pair is complete.
+
+Latency (benchmarks/unitree_latency.py, docs/benchmarks.md): the state path is one thread, so a
+JointState and the Imu the sim sends right after it are handled in order on the thread that already
+runs, with no hand-over between two callback threads (each a wake-up and a GIL transfer, and with two
+threads a lagging one made pairs miss: 320-415 LowState_ a second instead of 500 on a loaded machine);
+and the GIL switch interval is short, as in the sim, so a thread that wakes for a LowCmd_ or a state
+never waits the default 5 ms for another that holds it.
 """
 
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -43,6 +52,8 @@ logger = logging.getLogger("zensim.unitree")
 
 DDS_WAIT_S = 0.1
 """Longest the DDS thread blocks before it looks at the stop flag."""
+GIL_SWITCH_INTERVAL_S = 0.0002
+"""Longest a thread that wakes up waits for the GIL while another holds it (CPython default: 5 ms)."""
 
 
 @dataclass(frozen=True)
@@ -98,11 +109,11 @@ class UnitreeAdapter:
         self._ab_logged = False
         self._motors = TypedPublisher.of(session, keys, topics.MOTORS)
         self._status = TypedPublisher.of(session, keys, topics.UNITREE_STATUS)
-        self._subscribers = [
-            session.declare_subscriber(keys.joints, self._on_joints),
-            session.declare_subscriber(keys.imu, self._on_imu),
-            session.declare_subscriber(keys.sim_status, self._on_sim_status),
-        ]
+        # One subscriber, so one callback thread, for the sim's states: see the module docstring.
+        # Other state/* keys (odom, the adapter's own status) are dropped by the key lookup.
+        self._state_routes = {keys.joints: self._on_joints, keys.imu: self._on_imu,
+                              keys.sim_status: self._on_sim_status}
+        self._subscribers = [session.declare_subscriber(f"{keys.root}/state/*", self._on_any_state)]
 
     def adopt(self, robot: Robot) -> None:
         """Take `robot` (at start, and after a sim restart): its joint order is the motor order."""
@@ -112,7 +123,12 @@ class UnitreeAdapter:
             self._cap_bytes = vector_cap_bytes(robot.joint_names)
             self.sim_restarted.clear()
 
-    # --- zensim -> DDS (zenoh threads) -------------------------------------------
+    # --- zensim -> DDS (the state callback thread) ---------------------------------
+
+    def _on_any_state(self, sample: zenoh.Sample) -> None:
+        handler = self._state_routes.get(str(sample.key_expr))
+        if handler is not None:
+            handler(sample)
 
     def _on_joints(self, sample: zenoh.Sample) -> None:
         self._on_state(sample, self._joints_codec, "joints")
@@ -252,6 +268,7 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
     robot = fetch_robot(session, keys, settings.info_timeout_s, stop, Robot.from_info, logger)
     if robot is None:
         return 0
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     dds = UnitreeDds(settings.domain_id, settings.interface)
     adapter = UnitreeAdapter(session, keys, robot, settings, dds)
     dds_thread = threading.Thread(target=adapter.dds_loop, args=(stop,), name="dds", daemon=True)

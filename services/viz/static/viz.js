@@ -49,11 +49,17 @@ function connect() {
   };
 }
 
+// A robot's scene commands (kind 1) are kept until the robot message that follows them and applied
+// in one task: applied as they arrive, the viewer redraws the growing scene between messages, which
+// with the G1's shells and software WebGL made the first full frame seconds late.
+let pendingScene = { generation: -1, commands: [] };
+
 function onBinary(buf) {
   const head = new Uint32Array(buf, 0, 2);
   const kind = head[0], generation = head[1];
   if (kind === 1) {
-    viewer.handle_command_bytearray(new Uint8Array(buf.slice(8)));
+    if (generation !== pendingScene.generation) pendingScene = { generation, commands: [] };
+    pendingScene.commands.push(new Uint8Array(buf.slice(8)));
   } else if (kind === 2) {
     if (generation === state.generation && nodes.length) applyFrame(new Float32Array(buf, 8));
     // Ack once drawn: the server sends the next (newest) frame only then, so nothing queues.
@@ -87,6 +93,10 @@ function onJson(msg) {
 }
 
 function onRobot(msg) {
+  if (pendingScene.generation === msg.generation) {
+    for (const command of pendingScene.commands) viewer.handle_command_bytearray(command);
+  }
+  pendingScene = { generation: -1, commands: [] };
   state.robot = msg;
   state.generation = msg.generation;
   state.sceneReady = false;
