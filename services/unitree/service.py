@@ -15,6 +15,9 @@ Writes:
 
 A DDS thread waits on both DDS readers; zenoh's callback threads build LowState_. Nothing queues:
 a LowCmd_ is forwarded as soon as it is read, a LowState_ written as soon as its pair is complete.
+`_lock` guards the builder and the counters only, and is never held across a DDS write or a zenoh
+put (a write that blocks would stall the thread reading rt/lowcmd behind it); `_write_lock`
+keeps LowState_ writes in the order their pairs completed (docs/architecture.md, "Threads").
 """
 
 from __future__ import annotations
@@ -86,6 +89,9 @@ class UnitreeAdapter:
         self._settings = settings
         self._dds = dds
         self._lock = threading.Lock()
+        self._write_lock = threading.Lock()
+        self._built = 0  # LowState_ pairs completed (under _lock); the write order
+        self._written = 0  # the newest pair written (under _write_lock)
         self.counters = Counters()
         self.sim_restarted = threading.Event()
         """Set when state/sim comes from another sim run: the loop learns the robot again."""
@@ -137,7 +143,14 @@ class UnitreeAdapter:
                 data = getattr(self._builder, which)(message)
                 if data is None:
                     return
+                self._built += 1
+                order = self._built
+            with self._write_lock:
+                if order < self._written:  # the other state thread wrote a newer pair meanwhile
+                    return
+                self._written = order
                 self._dds.write_lowstate(data)
+            with self._lock:
                 self.counters.lowstate_published += 1
                 self.counters.sim_time_s = message.sim_time_s
         except (DecodeError, ValueError, OSError) as exc:
@@ -219,6 +232,11 @@ class UnitreeAdapter:
 
     # --- status ----------------------------------------------------------------------
 
+    def lowstate_published(self) -> int:
+        """LowState_ written so far (read under the lock: the state threads count it)."""
+        with self._lock:
+            return self.counters.lowstate_published
+
     def publish_status(self, seq: int, rate_hz: float) -> None:
         with self._lock:
             c = self.counters
@@ -271,7 +289,7 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
                 adapter.adopt(robot)
                 logger.info("robot from the restarted sim: %d motors", len(robot.joint_names))
             now = time.monotonic()
-            count = adapter.counters.lowstate_published
+            count = adapter.lowstate_published()
             adapter.publish_status(seq, (count - last_count) / (now - last_time))
             last_count, last_time = count, now
             seq += 1
