@@ -172,8 +172,8 @@ class Lockstep:
         status_period_s = 1.0 / service.settings.status_rate_hz
         now = time.monotonic()
         next_status = now
-        last_status_wall, last_status_sim = now, sim.sim_time_s
         with self.lock:
+            last_status_wall, last_status_sim = now, sim.sim_time_s
             service._publish_states()  # the initial instant, before the first command
         while not service.stop.is_set():
             service.requests.run_next(min(IDLE_POLL_S, max(0.0, next_status - time.monotonic())), service.run_request)

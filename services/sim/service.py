@@ -84,6 +84,33 @@ FAST_BATCH_STEPS = 10
 """Steps run back to back at rtf 0 with wall-clock states (0.2-0.4 ms of wall time)."""
 
 
+class PhysicsLock:
+    """A lock that knows which thread holds it, so the threading rule can be checked, not just written.
+
+    Used as `with service.physics:`; `held()` says whether the calling thread holds it.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._owner: int | None = None
+
+    def __enter__(self) -> PhysicsLock:
+        self._lock.acquire()
+        self._owner = threading.get_ident()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self._owner = None
+        self._lock.release()
+
+    def locked(self) -> bool:
+        return self._lock.locked()
+
+    def held(self) -> bool:
+        """True when the calling thread holds the lock."""
+        return self._owner == threading.get_ident()
+
+
 @dataclass(frozen=True)
 class Snapshot:
     """What a reply made off the loop thread says of the sim: taken whole by the physics-lock holder."""
@@ -118,7 +145,7 @@ class SimService:
         self.run_id = uuid.uuid4().hex[:16]
         self.paused = settings.paused
         self.pacer = Pacer(sim.timestep_s, settings.rtf)
-        self.physics = threading.Lock()
+        self.physics = PhysicsLock()
         """Held by whichever thread reads or writes MjData (the loop; a lockstep command's thread)."""
         self.requests = Requests(lambda reason: self._status_reply(ok=False, error=reason, off_loop=True))
         self.shed_commands = 0
@@ -469,8 +496,8 @@ class SimService:
         status_period_s = 1.0 / settings.status_rate_hz
         now = time.monotonic()
         next_status = next_publish = now
-        last_status_wall, last_status_sim = now, sim.sim_time_s
         with self.physics:
+            last_status_wall, last_status_sim = now, sim.sim_time_s
             self._publish_states()
         while not self.stop.is_set():
             if self.paused:
