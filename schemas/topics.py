@@ -35,6 +35,12 @@ from .messages import (
 )
 
 Kind = Literal["publication", "queryable", "liveliness"]
+Scope = Literal["robot", "router"]
+
+ROUTER_ROOT: Final = "zensim/@router"
+"""Root of the keys that belong to a router, not to one robot: every robot's clients on that router see
+them. `@router` is a verbatim chunk (zenoh matches it only by itself, never by `*` or `**`), and no
+robot id can start with `@`, so these keys never mix with a robot's (`zensim/*/alive/*` does not see them)."""
 
 
 @dataclass(frozen=True)
@@ -51,6 +57,7 @@ class Topic:
         reply: a queryable's reply Struct.
         payload: what travels when it is not a Struct (`float`, `URDF text (application/xml)`).
         note: a few words the docs add after the message name.
+        scope: `robot` (the key is under `zensim/{robot}/`) or `router` (under ROUTER_ROOT).
     """
 
     key: str
@@ -62,6 +69,19 @@ class Topic:
     reply: type[Message] | None = None
     payload: str = ""
     note: str = ""
+    scope: Scope = "robot"
+
+    def full_key(self, root: str | None = None) -> str:
+        """The whole key: under `root` (`zensim/g1`) for a robot's topic, under ROUTER_ROOT for the router's."""
+        if self.scope == "router":
+            return f"{ROUTER_ROOT}/{self.key}"
+        if root is None:
+            raise ValueError(f"{self.key!r} is a robot's key: name the robot's root")
+        return f"{root}/{self.key}"
+
+    def doc_key(self) -> str:
+        """The key as the protocol table shows it (relative to `zensim/{robot}/`, or whole for the router's)."""
+        return f"{ROUTER_ROOT}/{self.key}" if self.scope == "router" else self.key
 
     def wire_name(self) -> str:
         """The message as `RobotInfo.keys` names it: struct tags (`reset_request -> ctl_reply`) or the payload."""
@@ -80,7 +100,7 @@ class Topic:
 
     def info(self, root: str) -> KeyInfo:
         """This topic's row for `RobotInfo.keys`, with the full key under `root` (`zensim/g1`)."""
-        return KeyInfo(key=f"{root}/{self.key}", kind=self.kind, message=self.wire_name(), writer=self.writer,
+        return KeyInfo(key=self.full_key(root), kind=self.kind, message=self.wire_name(), writer=self.writer,
                        reader=self.reader, rate=self.rate)
 
 
@@ -128,19 +148,24 @@ MESH: Final = Topic("info/mesh/{path}", "queryable", "sim", "anyone", "on demand
                     payload="mesh bytes (application/octet-stream)")
 ALIVE: Final = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree", "anyone",
                      "while running", payload="token")
+ROUTER_ALIVE: Final = Topic("alive", "liveliness", "router (one token whatever its `--robot-id`)",
+                            "viz (the router badge of every robot), anyone", "while running", payload="token",
+                            note="(the router serves every robot: its `alive/router` names only its own robot id)",
+                            scope="router")
 
 TOPICS: Final[tuple[Topic, ...]] = (
     JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
-    ROBOT_INFO, URDF, MESH, ALIVE,
+    ROBOT_INFO, URDF, MESH, ALIVE, ROUTER_ALIVE,
 )
 """Every topic, in the order the docs list them."""
 
 
 def protocol_table() -> str:
     """The Markdown protocol table of docs/protocol.md, rendered from `TOPICS`."""
-    rows = ["| key (under `zensim/{robot}/`) | kind | message | writer | reader | rate |", "|---|---|---|---|---|---|"]
+    rows = ["| key (under `zensim/{robot}/` unless whole) | kind | message | writer | reader | rate |",
+            "|---|---|---|---|---|---|"]
     for topic in TOPICS:
-        rows.append(f"| `{topic.key}` | {topic.kind} | {topic.doc_name()} | {topic.writer} | {topic.reader} | {topic.rate} |")
+        rows.append(f"| `{topic.doc_key()}` | {topic.kind} | {topic.doc_name()} | {topic.writer} | {topic.reader} | {topic.rate} |")
     return "\n".join(rows) + "\n"
