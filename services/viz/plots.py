@@ -25,6 +25,7 @@ from __future__ import annotations
 import bisect
 import math
 import threading
+import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -37,6 +38,10 @@ MIN_SAMPLE_DT_S: Final = 0.01
 MAX_SAMPLES: Final = int(WINDOW_S / MIN_SAMPLE_DT_S) + 50
 MAX_PLOT_JOINTS: Final = 6
 """Joints one page may plot at once."""
+APPLIED_GRACE_S: Final = 0.1
+"""Wall time a sample waits before it is sent while targets come from state/applied: a lockstep sim
+publishes an advance's states just before its state/applied, on another key (another zenoh thread
+here), so the target of the newest state may be a moment behind it."""
 
 
 @dataclass(frozen=True)
@@ -45,6 +50,8 @@ class Sample:
     sim_time_s: float
     q: tuple[float, ...]
     tau: tuple[float, ...]
+    arrived: float = 0.0
+    """Wall time (monotonic) the state arrived."""
 
 
 Targets = tuple[float | None, ...]
@@ -111,6 +118,7 @@ class PlotFeed:
     _newest_state_s: float = float("-inf")
     _next_index: int = 0
     _lock: threading.Lock = field(default_factory=threading.Lock)
+    grace_s: float = APPLIED_GRACE_S
 
     def set_joints(self, names: Sequence[str]) -> None:
         """A new robot description: start over with its joints."""
@@ -132,12 +140,15 @@ class PlotFeed:
                 self._merge(math.nextafter(self._newest_state_s, math.inf), names, q)
 
     def on_applied(self, sim_time_s: float, names: Sequence[str] | None, q: Sequence[float]) -> None:
-        """A command the sim applied from `sim_time_s` on (state/applied): placed exactly."""
+        """A command the sim applied from `sim_time_s` on (state/applied): placed exactly.
+
+        The state at `sim_time_s` itself came from the command before (AppliedCommand.sim_time_s is
+        the time before its steps), so it takes effect just after."""
         with self._lock:
             if not self._timed:  # from now on only these: drop what the untimed ones guessed
                 self._timed = True
                 self._targets = TargetTimeline()
-            self._merge(sim_time_s, names, q)
+            self._merge(math.nextafter(sim_time_s, math.inf), names, q)
 
     def _merge(self, sim_time_s: float, names: Sequence[str] | None, q: Sequence[float]) -> None:
         n = len(self.joint_names)
@@ -171,7 +182,7 @@ class PlotFeed:
             if last is not None and sim_time_s - last < MIN_SAMPLE_DT_S - 1e-9:
                 return
             self._next_index += 1
-            self.samples.append(Sample(self._next_index, sim_time_s, tuple(q), tuple(tau)))
+            self.samples.append(Sample(self._next_index, sim_time_s, tuple(q), tuple(tau), time.monotonic()))
             self._targets.forget_before(self.samples[0].sim_time_s)
 
     def subscribe(self, names: Sequence[str]) -> Subscription:
@@ -185,6 +196,9 @@ class PlotFeed:
             if clear:
                 sub.epoch, sub.sent_index = self.epoch, -1
             new = [s for s in self.samples if s.index > sub.sent_index]
+            if self._timed:  # wait for the targets of the newest states (APPLIED_GRACE_S)
+                settled = time.monotonic() - self.grace_s
+                new = [s for s in new if s.arrived <= settled]
             none = (None,) * len(self.joint_names)
             targets = [self._targets.at(s.sim_time_s) or none for s in new]
         if not new and not clear:
