@@ -73,11 +73,13 @@ PAUSED_POLL_S = 0.005
 COMMAND_RING = 1024
 """Newest command samples zenoh keeps for the command thread; older ones are dropped there under a flood."""
 COMMAND_BATCH_PERIOD_S = 0.001
-"""Shortest wall time between two takes of the command ring (half a 2 ms physics step).
+"""Shortest wall time between two takes of commands (half a 2 ms physics step).
 
-Each take keeps only the newest sample of each source and sheds the rest unread, so a flood from
+Each take decodes only the newest sample of each source and sheds the rest unread, so a flood from
 one source costs at most one decode per take (1000 a second) however fast it comes, and a command
 waits at most this long plus one take's work before it is applied."""
+COMMAND_POLL_S = 0.0002
+"""How often the command thread empties zenoh's ring while it waits for the next take."""
 GIL_SWITCH_INTERVAL_S = 0.0002
 """Longest the physics thread waits for the GIL while callback threads hold it (CPython default: 5 ms)."""
 FAST_BATCH_STEPS = 10
@@ -261,34 +263,37 @@ class SimService:
         # recv() on the handler, not the subscriber: undeclaring a subscriber that another thread
         # is blocked in is refused ("Already borrowed"); the handler's recv just ends with ZError.
         ring = self._commands.handler
+        # Latest wins at the physics step: a command with a newer one from the same source behind it
+        # would be overwritten before any step saw it, so it is shed unread. Samples leave zenoh's
+        # ring at once (a sample kept there keeps its receive buffer alive: the RSS grew by 20 MB
+        # under a flood when the ring was left to fill between takes); only the newest of each
+        # source waits here, for the next take.
+        pending: dict[object, zenoh.Sample] = {}
+        next_take = 0.0
         while True:
             try:
-                sample = ring.recv()
-                if self.lockstep is not None:  # lockstep: every command advances, in arrival order
-                    self._on_command(sample)
-                    continue
-                batch = [sample]
-                while (more := ring.try_recv()) is not None and len(batch) < COMMAND_RING:
-                    batch.append(more)
+                sample = ring.recv() if not pending else ring.try_recv()
+                while sample is not None:
+                    if self.lockstep is not None:  # lockstep: every command advances, in arrival order
+                        self._on_command(sample)
+                    else:
+                        source = source_of(sample)
+                        if pending.pop(source, None) is not None:  # re-inserted: keeps arrival order
+                            self.shed_commands += 1
+                        pending[source] = sample
+                    sample = ring.try_recv()
             except zenoh.ZError:  # undeclared at shutdown
                 return
-            for sample in self._newest_per_source(batch):
+            if not pending:
+                continue
+            now = time.monotonic()
+            if now < next_take:
+                time.sleep(min(next_take - now, COMMAND_POLL_S))
+                continue
+            next_take = now + COMMAND_BATCH_PERIOD_S
+            for sample in pending.values():
                 self._on_command(sample)
-            time.sleep(COMMAND_BATCH_PERIOD_S)  # the next take gathers what arrives meanwhile
-
-    def _newest_per_source(self, batch: list[zenoh.Sample]) -> list[zenoh.Sample]:
-        """The newest sample of each source in `batch`, in arrival order; the others are counted as shed.
-
-        Latest wins at the physics step anyway: a command with a newer one from the same source
-        behind it would be overwritten before any step saw it, so it is not worth decoding.
-        """
-        if len(batch) == 1:
-            return batch
-        newest: dict[object, int] = {}
-        for i, sample in enumerate(batch):
-            newest[source_of(sample)] = i
-        self.shed_commands += len(batch) - len(newest)
-        return [batch[i] for i in sorted(newest.values())]
+            pending.clear()
 
     def _on_command(self, sample: zenoh.Sample) -> None:
         try:
