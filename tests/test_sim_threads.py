@@ -5,7 +5,7 @@
   ctl/advance, wildcard and malformed queries and the loop publishes states and statuses. A race
   on MjData cannot be forced reliably (it needs a status read to land inside mj_step), so the test
   checks the rule that prevents it: every MjData access, on any thread, with the lock held.
-- A ctl request whose client gave up is dropped, not run: no late reset.
+- A ctl request whose client gave up is dropped, not run: no late reset; at most 16 wait at once.
 - info/robot pairs mode and episode from one value: a mode switch never shows the old mode with
   the new episode.
 """
@@ -154,6 +154,36 @@ def test_a_reset_whose_client_gave_up_is_dropped_not_run(start_service, zsession
     assert after.resets == before.resets, "a reset ran after its client had given up"
     assert after.episode == before.episode
     assert after.steps > 0  # the steps did run (nothing was reset after them)
+
+
+def test_requests_beyond_16_waiting_are_answered_busy_at_once(start_service, zsession: zenoh.Session,
+                                                              robot_id: str) -> None:
+    """While the loop is busy, 16 requests may wait; the rest get `busy` at once instead of a queue slot."""
+    keys = Keys(robot_id)
+    start_service("sim", "--mode", "floating", "--paused", "true")
+    wait_alive(zsession, keys)
+    stepper = threading.Thread(target=ctl, args=(zsession, keys.ctl("step"), {"n": 100000}), kwargs={"timeout_s": 120})
+    stepper.start()
+    time.sleep(0.3)
+    answers: list[tuple[float, dict | None]] = []
+
+    def pause() -> None:
+        started = time.monotonic()
+        replies = [r for r in zsession.get(keys.ctl("pause"), payload=b"{}", timeout=30.0) if r.ok is not None]
+        answers.append((time.monotonic() - started, json.loads(replies[0].ok.payload.to_bytes()) if replies else None))
+
+    callers = [threading.Thread(target=pause) for _ in range(24)]
+    for caller in callers:
+        caller.start()
+    for caller in callers:
+        caller.join(60)
+    stepper.join(120)
+    assert len(answers) == 24 and all(reply is not None for _, reply in answers), "every request gets one reply"
+    busy = [(t, reply) for t, reply in answers if not reply["ok"] and reply["error"].startswith("busy")]
+    if not busy and max(t for t, _ in answers) < 0.5:
+        pytest.skip("the loop was not busy long enough on this machine to fill the queue")
+    assert len(busy) >= 24 - 16, answers
+    assert all(t < 5.0 for t, _ in busy), "a busy answer comes at once, not after the wait"
 
 
 def test_info_never_pairs_the_old_mode_with_the_new_episode(start_service, zsession: zenoh.Session,

@@ -16,6 +16,7 @@ for it; a client that waits less than that may still see its request run after i
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
 import time
@@ -25,6 +26,8 @@ from dataclasses import dataclass, field
 import zenoh
 
 from zensim.schemas import CtlReply
+
+logger = logging.getLogger("zensim.sim")
 
 MAX_PENDING = 16
 """ctl requests that may wait for the loop at once; the next one is answered busy."""
@@ -109,5 +112,7 @@ class Requests:
     def _finish(request: Request, message: CtlReply) -> None:
         try:
             request.answer(request.query, message)
+        except Exception:  # a reply that cannot go out must not take the loop down
+            logger.exception("could not answer a ctl request")
         finally:
             request.query.drop()  # the final reply: the client's get() ends now

@@ -49,6 +49,7 @@ from zensim.schemas import (
     CtlReply,
     DecodeError,
     Keys,
+    Mode,
     ModeRequest,
     PauseRequest,
     ResetRequest,
@@ -119,7 +120,7 @@ class Snapshot:
 
     sim_time_s: float
     steps: int
-    mode: str
+    mode: Mode
     paused: bool
     episode: str
 
@@ -340,7 +341,7 @@ class SimService:
         """The reply to a ctl request; `off_loop` on a thread without the physics lock (from the snapshot)."""
         if off_loop:
             now = self._snapshot
-            return CtlReply(ok=ok, error=error, sim_time_s=now.sim_time_s, paused=now.paused, mode=now.mode,  # type: ignore[arg-type]
+            return CtlReply(ok=ok, error=error, sim_time_s=now.sim_time_s, paused=now.paused, mode=now.mode,
                             steps=now.steps, episode=now.episode)
         sim = self.sim
         return CtlReply(ok=ok, error=error, sim_time_s=sim.sim_time_s, paused=self.paused, mode=sim.mode, steps=sim.steps,
