@@ -76,7 +76,7 @@ class Lockstep:
     # --- the two ways in: a command on cmd/motors, a ctl/advance query ----------------------------
 
     def submit(self, command: MotorCommand) -> None:
-        """A command from cmd/motors (its subscriber's callback thread): step and publish."""
+        """A command from cmd/motors (the sim's command thread): step and publish."""
         with self.lock:
             self._publish(self.advance(command, hold_when_paused=True, key=self.service.keys.motors))
 
