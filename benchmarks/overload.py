@@ -1,28 +1,35 @@
-"""Overload: does the physics keep time while hostile clients flood it? (issue 9)
+"""Overload: does the physics keep time while hostile clients flood it? (issues 9 and 17)
 
-    .venv/bin/python benchmarks/overload.py [--seconds 60] [--rate-hz 10000] [--trials 150]
+    .venv/bin/python benchmarks/overload.py [--seconds 60] [--rate-hz 10000] [--trials 150] [--kinds valid]
 
 Starts a router and a sim (floating G1, rtf 1, states at 500 Hz) as real processes on loopback, and a
 well-behaved client in this process: a 100 Hz controller that holds the default pose on cmd/motors
 and steps the left elbow now and then, timing command -> first state/joints reflecting it (the torque
-probe of bridge_latency.py). First idle, then beside four flooding clients, each its own process,
-each aiming at `--rate-hz` samples per second on cmd/motors:
+probe of bridge_latency.py). Its samples say their source (zenoh source info), as zensim's own
+publishers' do. First idle, then beside flooding clients (`--kinds`, default `valid`), each its own
+process, each aiming at `--rate-hz` samples per second on cmd/motors:
 
+    valid       a valid full-body MotorCommand: every joint but the probed left elbow, by name, holding
+                the default pose (what decoding and checking a whole-robot command costs, without
+                fighting the good client for the joint it times)
     malformed   random bytes (msgpack and JSON-looking garbage)
     oversize    a 64 KiB payload (over the G1's cap of about 20 KiB)
     nested      deep nesting and invalid UTF-8, under the cap (the costly decode failures)
-    valid       a valid partial MotorCommand holding the right wrist (so the elbow trials are unaffected)
 
 Reported for each phase: worst 1 s window RTF (from state/sim), state/joints rate and its worst
-1 s window, the good client's command -> state p50/p99, the watchdog flag (never engaged?), and
-the RSS of the sim and the router, first 10 s vs end of the flood. Each flooder prints the rate it
-reached. The machine has 2 cores; the flooders run niced (19) so that what is measured is the
-sim's isolation, not the scheduler's share for five busy processes: say so with the figures.
+1 s window, the good client's command -> state p50/p99, the states' delivery lag p50/p99 (arrival
+wall time minus sim time, less the phase's smallest such offset: how late a state leaves and
+arrives against the sim clock; at rtf 1 that clock runs with the wall), the watchdog flag (never
+engaged?), commands rejected and shed, and the RSS of the sim and the router before the flood, 10 s
+into it and at its end. Each flooder prints the rate it reached. The flooders run niced (19) so that
+what is measured is the sim's isolation, not the scheduler's share for busy processes: say so with
+the figures, and how loaded the machine was.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import sys
@@ -36,11 +43,12 @@ import zenoh
 from bridge_latency import elbow_trials, run_trials
 from harness import Processes, client_config, free_port, rss_mb
 from zensim.common.wire import payload_of
-from zensim.schemas import Codec, Keys, MotorCommand, SimStatus
+from zensim.schemas import Codec, JointState, Keys, MotorCommand, RobotInfo, SimStatus
 
 FLOODER = r"""
 import json, os, random, sys, time, zenoh
 kind, endpoint, key, rate, seconds = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4]), float(sys.argv[5])
+pose = json.loads(sys.argv[6])  # joint name -> default q: the valid flood's full body
 rng = random.Random(kind)
 if kind == "malformed":
     payloads = [bytes(rng.randrange(256) for _ in range(rng.randrange(1, 200))) for _ in range(500)]
@@ -50,7 +58,7 @@ elif kind == "oversize":
 elif kind == "nested":
     payloads = [b'{"q": [0.1], "x": ' + b"[" * 3000 + b"]" * 3000 + b"}", b'{"names": ["a\xff\xfe"], "q": [0.1]}']
 else:
-    payloads = [json.dumps({"names": ["right_wrist_roll_joint"], "q": [0.0]}).encode()]
+    payloads = [json.dumps({"names": list(pose), "q": list(pose.values())}).encode()]
 conf = zenoh.Config()
 conf.insert_json5("mode", '"client"')
 conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -72,6 +80,14 @@ with zenoh.open(conf) as session:
 """
 
 
+def joint_names(session: zenoh.Session, keys: Keys) -> tuple[str, ...]:
+    """The robot's joints, in order (the valid flood names each)."""
+    for reply in session.get(keys.robot_info, timeout=5.0):
+        if reply.ok is not None:
+            return Codec(RobotInfo).decode(*payload_of(reply.ok)).joint_names
+    raise RuntimeError("no info/robot")
+
+
 def pin(pid: int, cpus: set[int]) -> None:
     """Move every thread of a process onto `cpus` (threads made later inherit it)."""
     for task in Path(f"/proc/{pid}/task").iterdir():
@@ -82,18 +98,30 @@ def pin(pid: int, cpus: set[int]) -> None:
 
 
 class Watch:
-    """Statuses and state arrival times, as received."""
+    """Statuses and state arrival times (with the sim time each state describes), as received."""
 
     def __init__(self) -> None:
         self.statuses: list[tuple[float, SimStatus]] = []
         self.state_times: list[float] = []
+        self.state_sim_times: list[float] = []
         self._codec = Codec(SimStatus)
+        self._joints_codec = Codec(JointState)
 
     def on_status(self, sample: zenoh.Sample) -> None:
         self.statuses.append((time.monotonic(), self._codec.decode(*payload_of(sample))))
 
-    def on_state(self, _sample: zenoh.Sample) -> None:
+    def on_state(self, sample: zenoh.Sample) -> None:
         self.state_times.append(time.monotonic())
+        self.state_sim_times.append(self._joints_codec.decode(*payload_of(sample)).sim_time_s)
+
+    def delivery_lag_s(self, start: float, end: float) -> np.ndarray:
+        """Each state's arrival minus its sim time, less the smallest such offset in the window, s.
+
+        Resets (sim time jumping back) would break the offset: none happen in this benchmark."""
+        arrival, sim_time = np.array(self.state_times), np.array(self.state_sim_times)
+        keep = (arrival >= start) & (arrival <= end)
+        offset = arrival[keep] - sim_time[keep]
+        return offset - offset.min() if len(offset) else np.array([float("nan")])
 
     def window(self, start: float, end: float) -> dict:
         statuses = [(t, s) for t, s in self.statuses if start <= t <= end]
@@ -111,6 +139,8 @@ class Watch:
             "worst_1s_state_rate_hz": int(per_second.min()) if len(per_second) else 0,
             "watchdog_engaged": any(s.watchdog for _, s in statuses),
             "rejected": statuses[-1][1].rejected_commands - statuses[0][1].rejected_commands if statuses else 0,
+            "shed": statuses[-1][1].shed_commands - statuses[0][1].shed_commands if statuses else 0,
+            "lag_s": self.delivery_lag_s(start, end),
             "physics_resets": statuses[-1][1].physics_resets if statuses else 0,
         }
 
@@ -120,6 +150,8 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=60.0, help="flood duration")
     parser.add_argument("--rate-hz", type=float, default=10_000.0, help="samples per second per flooder")
     parser.add_argument("--trials", type=int, default=150, help="latency trials per phase")
+    parser.add_argument("--kinds", default="valid",
+                        help="flooders, comma-separated: valid, malformed, oversize, nested (default: valid)")
     parser.add_argument("--state-rate-hz", default="500")
     parser.add_argument("--no-nice", action="store_true", help="run the flooders at normal priority")
     parser.add_argument("--pin", action="store_true",
@@ -151,8 +183,11 @@ def main() -> int:
                     session.declare_subscriber(keys.sim_status, watch.on_status)]
             motors = session.declare_publisher(keys.motors, encoding=zenoh.Encoding("application/msgpack"))
             motors_codec = Codec(MotorCommand)
+            sn = itertools.count(1)
             elbow = [float(default[i])]
             stop = threading.Event()
+            names = joint_names(session, keys)
+            pose = {name: float(q) for k, (name, q) in enumerate(zip(names, default)) if k != i}
 
             def controller() -> None:  # the well-behaved client: 100 Hz, the whole pose
                 while not stop.wait(0.01):
@@ -162,7 +197,8 @@ def main() -> int:
                 elbow[0] = target
                 q = default.copy()
                 q[i] = target
-                motors.put(motors_codec.encode(MotorCommand(q=tuple(q.tolist()))))
+                motors.put(motors_codec.encode(MotorCommand(q=tuple(q.tolist()))),
+                           source_info=zenoh.SourceInfo(motors.id, next(sn)))  # as zensim's publishers say
 
             threading.Thread(target=controller, daemon=True).start()
             time.sleep(1.0)
@@ -172,11 +208,12 @@ def main() -> int:
             time.sleep(max(0.0, 10.0 - (time.monotonic() - start)))
             results["idle"] = watch.window(start + 1.0, time.monotonic())
             results["idle"]["latencies"] = idle
+            rss_before = {"sim": rss_mb(sim.pid), "router": rss_mb(router.pid)}
 
             nice = [] if args.no_nice else ["nice", "-n", "19"]
             flooders = [procs.start(f"flood-{kind}", [*nice, sys.executable, "-c", FLOODER, kind, endpoint, keys.motors,
-                                                       str(args.rate_hz), str(args.seconds)])
-                        for kind in ("malformed", "oversize", "nested", "valid")]
+                                                       str(args.rate_hz), str(args.seconds), json.dumps(pose)])
+                        for kind in args.kinds.split(",")]
             if args.pin:
                 time.sleep(1.0)  # their zenoh threads exist once the sessions are open
                 for proc in flooders:
@@ -200,6 +237,7 @@ def main() -> int:
                 flood_rates.append(json.loads(log[-1]) if log and log[-1].startswith("{") else {"error": log[-3:]})
             results["flood"] = watch.window(start + 1.0, end)
             results["flood"]["latencies"] = latencies
+            results["flood"]["rss_mb_before"] = rss_before
             results["flood"]["rss_mb_at_10s"] = rss_at_10
             results["flood"]["rss_mb_end"] = rss_end
             stop.set()
@@ -213,21 +251,27 @@ def main() -> int:
           f"flooders (niced: {not args.no_nice}):")
     for rate in flood_rates:
         print("  ", rate)
-    print(f"\n{'phase':<7} {'worst 1 s RTF':>14} {'states/s':>9} {'worst 1 s':>9} {'p50 ms':>7} {'p99 ms':>7} "
-          f"{'watchdog':>8} {'rejected':>9} {'phys resets':>11}")
+    print(f"\n{'phase':<7} {'worst 1 s RTF':>14} {'states/s':>9} {'worst 1 s':>9} {'cmd p50 ms':>10} {'cmd p99 ms':>10} "
+          f"{'lag p50 ms':>10} {'lag p99 ms':>10} {'watchdog':>8} {'rejected':>9} {'shed':>9} {'phys resets':>11}")
     for phase, r in results.items():
-        ms = np.array(r["latencies"]) * 1e3
+        ms, lag = np.array(r["latencies"]) * 1e3, r["lag_s"] * 1e3
         print(f"{phase:<7} {r['worst_1s_rtf']:>14.4f} {r['state_rate_hz']:>9.1f} {r['worst_1s_state_rate_hz']:>9d} "
-              f"{np.percentile(ms, 50):>7.2f} {np.percentile(ms, 99):>7.2f} {str(r['watchdog_engaged']):>8} "
-              f"{r['rejected']:>9d} {r['physics_resets']:>11d}")
+              f"{np.percentile(ms, 50):>10.2f} {np.percentile(ms, 99):>10.2f} {np.percentile(lag, 50):>10.2f} "
+              f"{np.percentile(lag, 99):>10.2f} {str(r['watchdog_engaged']):>8} {r['rejected']:>9d} {r['shed']:>9d} "
+              f"{r['physics_resets']:>11d}")
     flood = results.get("flood", {})
     if flood.get("rss_mb_at_10s"):
         for name in ("sim", "router"):
-            a, b = flood["rss_mb_at_10s"][name], flood["rss_mb_end"][name]
-            print(f"RSS {name}: {a:.1f} MB at 10 s -> {b:.1f} MB at the end ({b - a:+.1f} MB)")
+            a, b, c = flood["rss_mb_before"][name], flood["rss_mb_at_10s"][name], flood["rss_mb_end"][name]
+            print(f"RSS {name}: {a:.1f} MB before the flood, {b:.1f} MB at 10 s, {c:.1f} MB at the end "
+                  f"({c - a:+.1f} MB over the flood, {c - b:+.1f} MB after its first 10 s)")
     if "idle" in results and "flood" in results:
-        ratio = np.percentile(results["flood"]["latencies"], 99) / np.percentile(results["idle"]["latencies"], 99)
-        print(f"good client's p99 under flood / idle: {ratio:.2f}")
+        idle, flood = results["idle"], results["flood"]
+        for what, a, b in (("command -> state", np.array(idle["latencies"]), np.array(flood["latencies"])),
+                           ("state delivery lag", idle["lag_s"], flood["lag_s"])):
+            print(f"{what}, flood / idle: p50 {np.percentile(b, 50) / np.percentile(a, 50):.2f}x, "
+                  f"p99 {np.percentile(b, 99) / np.percentile(a, 99):.2f}x")
+    print(f"load average while it ran: {os.getloadavg()}")
     print(f"logs: {procs.dir}")
     return 0
 

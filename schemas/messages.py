@@ -174,6 +174,11 @@ class SimStatus(Message, frozen=True, tag="sim_status", kw_only=True):
     (start, ctl/reset, a mode switch, an automatic reset). A new value tells a client that holds
     targets (the bridge) to hold the default pose of `mode` again; a new `run_id` with it means the
     robot itself may have changed. Opaque: compare it, do not parse it. Empty from a sim that does not say."""
+    shed_commands: int = 0
+    """Commands on cmd/motors dropped unread since start because a newer one from the same source was
+    already waiting (latest wins, so it would never have been applied). Not errors: a flood costs the
+    sim one decode per source and take of its command queue. Samples carry their source in zenoh's
+    source info (the publisher's id); samples without it count as one source."""
 
 
 # --- commands -------------------------------------------------------------

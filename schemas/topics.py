@@ -44,6 +44,12 @@ from .messages import (
 Kind = Literal["publication", "queryable", "liveliness"]
 M = TypeVar("M", bound=Message)
 RoleKind = Literal["service", "client"]
+Scope = Literal["robot", "router"]
+
+ROUTER_ROOT: Final = "zensim/@router"
+"""Root of the keys that belong to a router, not to one robot: every robot's clients on that router see
+them. `@router` is a verbatim chunk (zenoh matches it only by itself, never by `*` or `**`), and no
+robot id can start with `@`, so these keys never mix with a robot's (`zensim/*/alive/*` does not see them)."""
 
 
 @dataclass(frozen=True)
@@ -64,6 +70,7 @@ class Topic(Generic[M]):
             wildcard: `cmd/joint/{joint}` -> `joint_target_any` = `.../cmd/joint/*`); empty: no
             attribute (use `Keys.of(topic)`).
         wildcard: what a placeholder becomes in that key expression: `*` (one chunk) or `**` (a path).
+        scope: `robot` (the key is under `zensim/{robot}/`) or `router` (under ROUTER_ROOT).
     """
 
     key: str
@@ -87,6 +94,19 @@ class Topic(Generic[M]):
         if self.message is None:
             raise ValueError(f"{self.key} carries no message struct ({self.payload})")
         return self.message
+    scope: Scope = "robot"
+
+    def full_key(self, root: str | None = None) -> str:
+        """The whole key: under `root` (`zensim/g1`) for a robot's topic, under ROUTER_ROOT for the router's."""
+        if self.scope == "router":
+            return f"{ROUTER_ROOT}/{self.key}"
+        if root is None:
+            raise ValueError(f"{self.key!r} is a robot's key: name the robot's root")
+        return f"{root}/{self.key}"
+
+    def doc_key(self) -> str:
+        """The key as the protocol table shows it (relative to `zensim/{robot}/`, or whole for the router's)."""
+        return f"{ROUTER_ROOT}/{self.key}" if self.scope == "router" else self.key
 
     def wire_name(self) -> str:
         """The message as `RobotInfo.keys` names it: struct tags (`reset_request -> ctl_reply`) or the payload."""
@@ -105,7 +125,7 @@ class Topic(Generic[M]):
 
     def info(self, root: str) -> KeyInfo:
         """This topic's row for `RobotInfo.keys`, with the full key under `root` (`zensim/g1`)."""
-        return KeyInfo(key=f"{root}/{self.key}", kind=self.kind, message=self.wire_name(), writer=self.writer,
+        return KeyInfo(key=self.full_key(root), kind=self.kind, message=self.wire_name(), writer=self.writer,
                        reader=self.reader, rate=self.rate)
 
 
@@ -155,12 +175,16 @@ MESH: Final[Topic[Message]] = Topic("info/mesh/{path}", "queryable", "sim", "any
                     payload="mesh bytes (application/octet-stream)", name="mesh_any", wildcard="**")
 ALIVE: Final[Topic[Message]] = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree, ros1", "anyone",
                      "while running", payload="token", name="alive_any")
+ROUTER_ALIVE: Final[Topic[Message]] = Topic("alive", "liveliness", "router (one token whatever its `--robot-id`)",
+                                            "viz (the router badge of every robot), anyone", "while running",
+                                            payload="token", scope="router",
+                                            note="(the router serves every robot: its `alive/router` names only its own robot id)")
 
 TOPICS: Final[tuple[Topic, ...]] = (
     JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
-    ROBOT_INFO, URDF, MESH, ALIVE,
+    ROBOT_INFO, URDF, MESH, ALIVE, ROUTER_ALIVE,
 )
 """Every topic, in the order the docs list them."""
 
@@ -270,7 +294,7 @@ ROLE_USES: Final[tuple[tuple[str, str, Kind], ...]] = (
 
 def covered_topics(pattern: str, kind: Kind) -> list[Topic]:
     """The topics of `kind` that key expression `pattern` (under `zensim/{robot}/`) reaches."""
-    return [t for t in TOPICS if t.kind == kind and intersects(pattern, t.pattern())]
+    return [t for t in TOPICS if t.kind == kind and t.scope == "robot" and intersects(pattern, t.pattern())]
 
 
 def _roles_on(topic: Topic[Message], field: str) -> tuple[str, ...]:
@@ -278,13 +302,18 @@ def _roles_on(topic: Topic[Message], field: str) -> tuple[str, ...]:
 
 
 def writers(topic: Topic) -> tuple[str, ...]:
-    """The roles that may write `topic`: publish it, serve it or hold its token."""
+    """The roles that may write `topic`: publish it, serve it or hold its token (a router's key: the router
+    itself, which no access rule governs: it is the one enforcing them)."""
+    if topic.scope == "router":
+        return ("router",)
     field = {"publication": "publishes", "queryable": "serves", "liveliness": "tokens"}[topic.kind]
     return _roles_on(topic, field)
 
 
 def readers(topic: Topic) -> tuple[str, ...]:
     """The roles that may read `topic`: subscribe to it, query it or watch its token."""
+    if topic.scope == "router":
+        return ROLE_NAMES  # the router's token: every role may watch it (secure.py's ROUTER_WATCH rule)
     if topic.kind == "liveliness":
         return ROLE_NAMES if any(intersects(p, topic.pattern()) for p in EVERY_ROLE_WATCHES) else ()
     return _roles_on(topic, "subscribes" if topic.kind == "publication" else "queries")
@@ -292,12 +321,12 @@ def readers(topic: Topic) -> tuple[str, ...]:
 
 def protocol_table() -> str:
     """The Markdown protocol table of docs/protocol.md, rendered from `TOPICS`."""
-    rows = ["| key (under `zensim/{robot}/`) | kind | message | writer | reader | rate | roles: write / read |",
+    rows = ["| key (under `zensim/{robot}/` unless whole) | kind | message | writer | reader | rate | roles: write / read |",
             "|---|---|---|---|---|---|---|"]
     for topic in TOPICS:
         roles = f"{', '.join(writers(topic)) or '-'} / {_readers_text(topic)}"
-        rows.append(f"| `{topic.key}` | {topic.kind} | {topic.doc_name()} | {topic.writer} | {topic.reader} | {topic.rate} "
-                    f"| {roles} |")
+        rows.append(f"| `{topic.doc_key()}` | {topic.kind} | {topic.doc_name()} | {topic.writer} | {topic.reader} "
+                    f"| {topic.rate} | {roles} |")
     return "\n".join(rows) + "\n"
 
 

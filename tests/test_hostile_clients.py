@@ -194,11 +194,15 @@ class TestDecodeFailures:
         wait_alive(zsession, keys)
         bridge = start_service("bridge")
         wait_alive(zsession, keys, "bridge")
-        seen = status.wait(what="a status").rejected_commands
+        first = status.wait(what="a status")
+        seen = first.rejected_commands + first.shed_commands
         for payload in (DEEP, BAD_UTF8):
             zsession.put(keys.motors, payload)
             zsession.put(keys.joint_targets, payload)
-        status_when(status, lambda m: m.rejected_commands == seen + 2, "both counted by the sim")
+        # Rejected when decoded, or shed unread when the other (newer, same source) was already waiting
+        # (the shed count may also hold a bridge command overtaken by the bridge's next on a slow machine).
+        counted = status_when(status, lambda m: m.rejected_commands + m.shed_commands >= seen + 2, "both counted by the sim")
+        assert 1 <= counted.rejected_commands - first.rejected_commands <= 2
         reports.wait(lambda m: m.rejected_total == 2, what="both counted by the bridge")
         for verb in ("reset", "pause", "resume", "step", "mode"):
             for payload in (DEEP, BAD_UTF8):

@@ -107,6 +107,8 @@ def violations(r: Role, records: list[dict], robot: str) -> list[str]:
     wrong = []
     for record in records:
         use, key = record["use"], record["key"].split("?", 1)[0]
+        if use.startswith("liveliness_") and key == topics.ROUTER_ALIVE.full_key():
+            continue  # every role may watch the router's own token (secure.py, ROUTER_WATCH_RULES)
         allowed = EVERY_ROLE_WATCHES if use.startswith("liveliness_") else getattr(r, FIELD_OF_USE[use])
         if not key.startswith(root) or not any(includes(p, key[len(root):]) for p in allowed):
             wrong.append(f"{r.name}: {use} on {record['key']!r} is not in its role")

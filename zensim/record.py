@@ -76,7 +76,12 @@ class Recorder:
         self.attachments: queue.Queue[tuple[str, str, bytes]] = queue.Queue()
         self.written = 0
         self.bytes_written = 0
-        self.skipped = 0
+        # Two counters, one writer each (the zenoh callback thread, the writing thread): a `+=` shared
+        # by two threads can lose counts (docs/architecture.md, "Threads").
+        self.dropped_behind = 0
+        """Samples dropped because the writer was behind (zenoh's callback thread only)."""
+        self.undecodable = 0
+        """Samples that did not decode as their key's message (the writing thread only)."""
         self.bad_input = RateLimitedLog(logger)
         self._codecs: dict[type, Codec] = {}
         self._description_wanted = threading.Event()
@@ -90,8 +95,13 @@ class Recorder:
         try:
             self.samples.put_nowait((str(sample.key_expr), data, encoding, received_ns))
         except queue.Full:
-            self.skipped += 1
+            self.dropped_behind += 1
             self.bad_input.warning("the writer is behind by %d samples: dropping", MAX_QUEUED)
+
+    @property
+    def skipped(self) -> int:
+        """Samples not recorded, for whatever reason."""
+        return self.dropped_behind + self.undecodable
 
     def fetch_description(self, stop: threading.Event) -> None:
         """Helper thread: get info/robot and info/urdf when the sim answers, and again after it restarted or
@@ -173,7 +183,7 @@ class Recorder:
                 if isinstance(sim_time_s, float) and 0 <= sim_time_s < 1e9:
                     publish_ns = round(sim_time_s * 1e9)
         except (DecodeError, ValueError, UnicodeDecodeError, RecursionError) as exc:
-            self.skipped += 1
+            self.undecodable += 1
             self.bad_input.warning("not recorded: a sample on %s: %s", key, str(exc)[:200])
             return
         self.writer.write(key, message_type, json_data, received_ns, publish_ns)

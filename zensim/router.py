@@ -2,7 +2,8 @@
 
 No `zenohd` binary is needed (none ships on PyPI or in Debian): a session
 opened with mode `router` routes for every peer and client that connects.
-It declares the liveliness token `zensim/{robot}/alive/router`.
+It declares the liveliness tokens `zensim/{robot}/alive/router` and `zensim/@router/alive` (the
+router's own key, which every robot's viewer watches: topics.ROUTER_ALIVE).
 
 It also guards the input keys: per client link, how fast samples may be put
 on `zensim/*/cmd/**`, and how large a payload on those keys may be. Zenoh's own downsampling and low-pass
@@ -41,7 +42,7 @@ from zensim.common.entry import fail, serve
 from zensim.common.secure import SecureConfigError
 from zensim.common.session import zenoh_config
 from zensim.common.settings import CommonSettings, ZenohSettings, settings_or_exit, zero_or_at_least
-from zensim.schemas import ROOT, Keys
+from zensim.schemas import ROOT, Keys, topics
 
 logger = logging.getLogger("zensim.router")
 ACL_AUDIT_LOG = "warn,zenoh::net::routing::interceptor::access_control=trace"
@@ -134,9 +135,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _route(session: zenoh.Session, settings: RouterSettings, stop: threading.Event, listening: list[str]) -> int:
-    token = session.liveliness().declare_token(Keys(settings.robot_id).alive("router"))
+    # Two tokens: `zensim/{robot}/alive/router` for its own robot id (as before), and one key of the
+    # router itself that every robot's viewer watches, whichever robot id the router was started with.
+    tokens = [session.liveliness().declare_token(Keys(settings.robot_id).alive("router")),
+              session.liveliness().declare_token(topics.ROUTER_ALIVE.full_key())]
     logger.info("router up, listening on %s", ", ".join(listening))
     stop.wait()
-    token.undeclare()
+    for token in tokens:
+        token.undeclare()
     logger.info("router stopped")
     return 0

@@ -42,7 +42,7 @@ from zensim.schemas import (
 from zensim.schemas.bounds import SCALAR_CAP_BYTES, vector_cap_bytes
 
 from .settings import BridgeSettings
-from .targets import HeldTargets, RobotModel, UnusableRobotInfo, Verdict
+from .targets import HeldTargets, RobotModel, UnusableRobotInfo, Verdict, carries_targets
 
 logger = logging.getLogger("zensim.bridge")
 
@@ -211,7 +211,6 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
     token = session.liveliness().declare_token(keys.alive("bridge"))
     # The shared pacer keeps an absolute schedule (no drift) and drops debt after a stall.
     pacer = Pacer(1.0 / settings.rate_hz, rtf=1.0)
-    targets_every = max(1, round(settings.rate_hz / settings.targets_rate_hz)) if settings.targets_rate_hz else 0
     logger.info("bridge up: %s at %.0f Hz, slew limit %s", keys.motors, settings.rate_hz,
                 f"{settings.slew_rad_s} rad/s" if settings.slew_rad_s else "off")
     ticks = 0
@@ -225,7 +224,7 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
                 bridge.adopt(model)
                 logger.info("robot from the restarted sim: %d joints, mode %s", len(model.joint_names), model.mode)
             now = time.monotonic()
-            bridge.tick(now - last, targets_every > 0 and ticks % targets_every == 0)
+            bridge.tick(now - last, carries_targets(ticks, settings.rate_hz, settings.targets_rate_hz))
             last = now
             ticks += 1
             pacer.stepped()

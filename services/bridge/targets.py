@@ -27,6 +27,17 @@ MAX_TICK_S = 0.1
 """Longest tick the slew limit accounts for: after a stall the q must not jump by seconds' worth."""
 
 
+def carries_targets(tick: int, rate_hz: float, targets_rate_hz: float) -> bool:
+    """Whether tick `tick` (0, 1, ...) of the `rate_hz` loop also publishes state/targets.
+
+    The ticks are spread so that exactly `targets_rate_hz` of every `rate_hz` carry it (30 of 100
+    at the defaults: 30 Hz, as the docs say; "every 3rd tick" would be 33.3 Hz); 0 turns it off.
+    """
+    if targets_rate_hz <= 0:
+        return False
+    return math.floor(tick * targets_rate_hz / rate_hz) != math.floor((tick - 1) * targets_rate_hz / rate_hz)
+
+
 class UnusableRobotInfo(ValueError):
     """A robot description the bridge cannot use (no pose or gains for the current mode)."""
 

@@ -29,7 +29,7 @@ from typing import Final
 import zenoh
 
 from zensim.schemas.keys import ROOT, check_robot_id
-from zensim.schemas.topics import EVERY_ROLE_WATCHES, ROLE_NAMES, ROLES, Role
+from zensim.schemas.topics import EVERY_ROLE_WATCHES, ROLE_NAMES, ROLES, ROUTER_ALIVE, Role
 
 DEFAULT_HOSTS: Final = ("localhost", "127.0.0.1", "::1", "router")
 """Names every router certificate carries: this machine, and compose's service name `router`."""
@@ -58,6 +58,11 @@ EVERY_ROLE_RULES: Final = [
     ("egress", ["declare_subscriber", "declare_queryable", "declare_liveliness_subscriber"], ["**"]),
 ]
 ALL_ROBOTS: Final = "*"
+ROUTER_WATCH_RULES: Final = [
+    # The router's own token (outside every robot's keys): every role may see that the router is up.
+    ("ingress", ["declare_liveliness_subscriber", "liveliness_query"]),
+    ("egress", ["liveliness_token", "liveliness_query"]),
+]
 
 
 def role_rules(role: Role) -> list[tuple[str, list[str], list[str]]]:
@@ -82,6 +87,10 @@ def access_control(robots: Mapping[str, Sequence[str]] | None = None) -> dict:
             ids.append(f"{role.name}-{n}")
             rules.append({"id": ids[-1], "flows": [flow], "permission": "allow", "messages": messages,
                           "key_exprs": [f"{ROOT}/{robot}/{key}" for robot in scope for key in keys]})
+        for n, (flow, messages) in enumerate(ROUTER_WATCH_RULES):
+            ids.append(f"{role.name}-router-{n}")
+            rules.append({"id": ids[-1], "flows": [flow], "permission": "allow", "messages": messages,
+                          "key_exprs": [ROUTER_ALIVE.full_key()]})
         subjects.append({"id": role.name, "usernames": [role.name], "cert_common_names": [cert_name(role.name)]})
         policies.append({"id": role.name, "rules": ids, "subjects": [role.name]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,

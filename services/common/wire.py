@@ -9,6 +9,7 @@ step.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 from typing import Generic, TypeVar
@@ -102,6 +103,10 @@ class Refusals:
 class TypedPublisher(Generic[M]):
     """A zenoh publisher declared once that writes one message type in one format.
 
+    Every sample says its source (zenoh's source info: this publisher's id and a sequence number),
+    so a reader can tell a newer sample of the same source from another source's (the sim sheds a
+    command that a newer one from its source follows, docs/protocol.md).
+
     `TypedPublisher.of(session, keys, topics.JOINTS)` takes the key and the type from the registry.
     """
 
@@ -119,9 +124,12 @@ class TypedPublisher(Generic[M]):
         encoding = zenoh.Encoding(encoding_of(fmt))
         self._publisher = (session.declare_publisher(key, encoding=encoding) if priority is None else
                            session.declare_publisher(key, encoding=encoding, priority=priority))
+        self._source = self._publisher.id
+        self._sn = itertools.count(1)  # next() is atomic under the GIL: puts from several threads stay unique
 
     def put(self, message: M) -> None:
-        self._publisher.put(self._codec.encode(message, self._fmt))
+        self._publisher.put(self._codec.encode(message, self._fmt),
+                            source_info=zenoh.SourceInfo(self._source, next(self._sn)))
 
     def undeclare(self) -> None:
         self._publisher.undeclare()

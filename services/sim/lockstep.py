@@ -9,9 +9,11 @@ Why the ctl/ plane for the request/reply form: every queryable that acts on the 
 ctl/, so an access-control rule on `ctl/**` covers it with the others, and cmd/ stays the plane of
 fire-and-forget publications with latest-wins semantics.
 
-A command is stepped right on the zenoh callback thread that received it, under one physics lock
-that the loop thread also holds while it runs ctl requests (reset, pause, step): a step never
-interleaves with a reset, and no thread hand-off sits in the controller's round trip. A ctl/advance
+A command is stepped right on the thread that received it (the sim's command thread, or the
+zenoh callback of ctl/advance), under the service's physics lock, which the loop thread also
+holds while it runs ctl requests (reset, pause, step) and while it reads the sim for state/sim:
+a step never interleaves with a reset or a status, and no thread hand-off sits in the
+controller's round trip. A ctl/advance
 query is answered before the states go out to everyone else (the asking client waits; the others
 only listen). Commands on cmd/motors come through the sim's command ring, drained by one thread,
 so they are stepped in arrival order; a client that floods faster than the physics runs loses the
@@ -24,8 +26,6 @@ build; the commands are the only input).
 from __future__ import annotations
 
 import logging
-import queue
-import threading
 import time
 from dataclasses import dataclass
 
@@ -63,8 +63,8 @@ class Lockstep:
         self.steps = service.settings.lockstep_steps
         self.applied_seq = 0
         self.waiting = True
-        self.lock = threading.Lock()
-        """Held while the physics moves or a ctl request runs."""
+        self.lock = service.physics
+        """The service's physics lock: held while the physics moves, a ctl request runs or the status is read."""
         self._codec = Codec(MotorCommand)
         self._reply_codec = Codec(AdvanceReply)
         service.sim.watchdog_enabled = False
@@ -76,7 +76,7 @@ class Lockstep:
     # --- the two ways in: a command on cmd/motors, a ctl/advance query ----------------------------
 
     def submit(self, command: MotorCommand) -> None:
-        """A command from cmd/motors (its subscriber's callback thread): step and publish."""
+        """A command from cmd/motors (the sim's command thread): step and publish."""
         with self.lock:
             self._publish(self.advance(command, hold_when_paused=True, key=self.service.keys.motors))
 
@@ -89,7 +89,7 @@ class Lockstep:
             # `z_get zensim/g1/**` reaches every queryable: the sim steps only when named.
             error = service.request_refusals.refuse(query.key_expr, f"ctl/advance acts only on a query for exactly "
                                                     f"{self.advance_key}; nothing was done")
-            self._answer(query, AdvanceReply(ok=False, error=error, sim_time_s=sim.sim_time_s, steps=sim.steps), fmt)
+            self._refuse(query, error, fmt)
             return
         try:
             command = decode_input(query, self._codec, service.input_cap_bytes)
@@ -97,7 +97,7 @@ class Lockstep:
             # A bad command is a bad command, whichever way it came: counted with those on cmd/motors.
             error = service.command_refusals.refuse(query.key_expr, str(exc))
             sim.reject(error)
-            self._answer(query, AdvanceReply(ok=False, error=error, sim_time_s=sim.sim_time_s, steps=sim.steps), fmt)
+            self._refuse(query, error, fmt)
             return
         with self.lock:
             try:
@@ -108,6 +108,11 @@ class Lockstep:
             self._answer(query, advanced.reply, fmt)  # the asking client first, then everyone else
             query.drop()  # ends the query now: a client waiting for the get to complete need not wait for the publishing
             self._publish(advanced)
+
+    def _refuse(self, query: zenoh.Query, error: str, fmt: str) -> None:
+        """Answer a refused query without the physics lock: time and steps from the service's snapshot."""
+        now = self.service._snapshot
+        self._answer(query, AdvanceReply(ok=False, error=error, sim_time_s=now.sim_time_s, steps=now.steps), fmt)
 
     def _answer(self, query: zenoh.Query, message: AdvanceReply, fmt: str) -> None:
         reply(query, self.advance_key, message, fmt, self._reply_codec)  # type: ignore[arg-type]
@@ -142,6 +147,7 @@ class Lockstep:
             return Advanced(AdvanceReply(ok=False, error=bounded(f"the physics broke ({reason}): reset"),
                                          sim_time_s=sim.sim_time_s, steps=sim.steps))
         service.seq += 1
+        service._snapshot = service._take_snapshot()
         joints, odom, imu = sim.joint_state(service.seq), sim.odometry(service.seq), sim.imu(service.seq)
         reply = AdvanceReply(ok=True, sim_time_s=sim.sim_time_s, steps=sim.steps, joints=joints, odom=odom, imu=imu)
         return Advanced(reply, applied)
@@ -166,32 +172,21 @@ class Lockstep:
         status_period_s = 1.0 / service.settings.status_rate_hz
         now = time.monotonic()
         next_status = now
-        last_status_wall, last_status_sim = now, sim.sim_time_s
-        service._publish_states()  # the initial instant, before the first command
+        with self.lock:
+            last_status_wall, last_status_sim = now, sim.sim_time_s
+            service._publish_states()  # the initial instant, before the first command
         while not service.stop.is_set():
-            self._serve_one(min(IDLE_POLL_S, max(0.0, next_status - time.monotonic())))
+            service.requests.run_next(min(IDLE_POLL_S, max(0.0, next_status - time.monotonic())), service.run_request)
             now = time.monotonic()
             if now >= next_status:
-                wall = now - last_status_wall
-                rtf = (sim.sim_time_s - last_status_sim) / wall if wall > 0 else 0.0
-                self.waiting = not service.paused and not self.lock.locked()
-                service._publish_status(max(rtf, 0.0))
-                last_status_wall, last_status_sim = now, sim.sim_time_s
+                stepping = self.lock.locked()  # a command is being stepped right now
+                with self.lock:  # the status reads MjData: never while another thread steps
+                    wall = now - last_status_wall
+                    rtf = (sim.sim_time_s - last_status_sim) / wall if wall > 0 else 0.0
+                    self.waiting = not service.paused and not stepping
+                    service._publish_status(max(rtf, 0.0))
+                    last_status_wall, last_status_sim = now, sim.sim_time_s
                 next_status = now + status_period_s
-
-    def _serve_one(self, timeout_s: float) -> None:
-        """Run the next job (command or ctl request), waiting up to `timeout_s` for one."""
-        try:
-            job = self.service.jobs.get(timeout=timeout_s) if timeout_s > 0 else self.service.jobs.get_nowait()
-        except queue.Empty:
-            return
-        with self.lock:
-            try:
-                job.reply = job.run()
-            except Exception as exc:  # a failed request must not take the loop down
-                logger.exception("lockstep job failed")
-                job.reply = self.service._status_reply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}"))
-        job.done.set()
 
     def close(self) -> None:
         self.queryable.undeclare()

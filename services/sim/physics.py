@@ -6,9 +6,12 @@ step, runs the command watchdog, detects falls, and turns MuJoCo's arrays
 into wire messages. The service (service.py) only moves bytes; tests and
 benchmarks drive this class directly.
 
-Threading: `accept_command` runs on zenoh's callback thread while the loop
-steps; the command is merged under a lock into a fresh set of arrays and
-swapped in whole, so a step never sees half of a command.
+Threading: `accept_command` runs on the service's command thread while the
+loop steps; the command is merged under `_lock` into a fresh set of arrays and
+swapped in whole, so a step never sees half of a command. The counters
+(`rejected`, `clamped`) change under the same lock, as several threads count
+into them. Everything that reads or writes `data` (MjData) is for the thread
+holding the service's physics lock (docs/architecture.md, "Threads").
 """
 
 from __future__ import annotations
@@ -290,14 +293,16 @@ class Simulation:
             new.tau[idx] = 0.0 if command.tau is None else command.tau
             self._targets = new
             self._last_command_wall = time.monotonic()
-        if n_clamped:
-            self.clamped += 1
+            if n_clamped:
+                self.clamped += 1
         return n_clamped
 
     def reject(self, reason: str) -> None:
-        """Count a rejected command (decode or validation failure)."""
-        self.rejected += 1
-        self.last_error = bounded(reason)
+        """Count a rejected command (decode or validation failure); any thread."""
+        text = bounded(reason)
+        with self._lock:
+            self.rejected += 1
+            self.last_error = text
 
     def command_age_s(self) -> float | None:
         """Wall time since the newest accepted command; None before the first."""

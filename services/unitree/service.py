@@ -23,6 +23,10 @@ runs, with no hand-over between two callback threads (each a wake-up and a GIL t
 threads a lagging one made pairs miss: 320-415 LowState_ a second instead of 500 on a loaded machine);
 and the GIL switch interval is short, as in the sim, so a thread that wakes for a LowCmd_ or a state
 never waits the default 5 ms for another that holds it.
+
+`_lock` guards the builder and the counters only, and is never held across a DDS write or a zenoh
+put (a write that blocks would stall the thread reading rt/lowcmd behind it); `_write_lock`
+keeps LowState_ writes in the order their pairs completed (docs/architecture.md, "Threads").
 """
 
 from __future__ import annotations
@@ -97,6 +101,9 @@ class UnitreeAdapter:
         self._settings = settings
         self._dds = dds
         self._lock = threading.Lock()
+        self._write_lock = threading.Lock()
+        self._built = 0  # LowState_ pairs completed (under _lock); the write order
+        self._written = 0  # the newest pair written (under _write_lock)
         self.counters = Counters()
         self.sim_restarted = threading.Event()
         """Set when state/sim comes from another sim run: the loop learns the robot again."""
@@ -153,7 +160,14 @@ class UnitreeAdapter:
                 data = getattr(self._builder, which)(message)
                 if data is None:
                     return
+                self._built += 1
+                order = self._built
+            with self._write_lock:
+                if order < self._written:  # the other state thread wrote a newer pair meanwhile
+                    return
+                self._written = order
                 self._dds.write_lowstate(data)
+            with self._lock:
                 self.counters.lowstate_published += 1
                 self.counters.sim_time_s = message.sim_time_s
         except (DecodeError, ValueError, OSError) as exc:
@@ -235,6 +249,11 @@ class UnitreeAdapter:
 
     # --- status ----------------------------------------------------------------------
 
+    def lowstate_published(self) -> int:
+        """LowState_ written so far (read under the lock: the state threads count it)."""
+        with self._lock:
+            return self.counters.lowstate_published
+
     def publish_status(self, seq: int, rate_hz: float) -> None:
         with self._lock:
             c = self.counters
@@ -288,7 +307,7 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
                 adapter.adopt(robot)
                 logger.info("robot from the restarted sim: %d motors", len(robot.joint_names))
             now = time.monotonic()
-            count = adapter.counters.lowstate_published
+            count = adapter.lowstate_published()
             adapter.publish_status(seq, (count - last_count) / (now - last_time))
             last_count, last_time = count, now
             seq += 1

@@ -4,8 +4,9 @@ Reads:
     state/joints (JointState), state/odom (Odometry): the robot's pose, latest wins.
     state/targets (JointTargets): the ghost (the commanded pose the bridge holds).
     state/sim (SimStatus): the status panel.
-    state/joints, cmd/motors, state/targets (every sample): the plot panel (plots.py).
+    state/joints, cmd/motors, state/targets, state/applied (every sample): the plot panel (plots.py).
     alive/* (liveliness): which services are up; `alive/sim` appearing triggers a description fetch.
+    zensim/@router/alive (liveliness): the router badge, whatever robot id the router was started with.
     info/robot, info/urdf, info/mesh/{path} (gets): the description, fetched again after each sim start.
 Writes:
     cmd/joints (JointTargets): slider moves.
@@ -41,6 +42,7 @@ from zensim.robots.mesh_files import resolve_mesh
 from zensim.schemas import topics
 from zensim.schemas.keys import SERVICES
 from zensim.schemas import (
+    AppliedCommand,
     Codec,
     CtlReply,
     DecodeError,
@@ -114,6 +116,8 @@ class VizService:
         self.alive: set[str] = set()
         self.alive_ignored = 0
         self.alive_logs: dict[str, RateLimitedLog] = {}
+        self.router_alive = False
+        """The router's own token (topics.ROUTER_ALIVE) is up: the badge is green for every robot."""
         self.alive_lock = threading.Lock()
 
         self.drawing: scene.Drawing | None = None
@@ -123,7 +127,8 @@ class VizService:
         self._last_drawn = (-1, -1, -1)
 
         # Any: each callback knows which type its codec gives (the key says it).
-        self._codecs: dict[type, Codec[Any]] = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus, RobotInfo, CtlReply, MotorCommand)}
+        self._codecs: dict[type, Codec[Any]] = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus, RobotInfo,
+                                                                      CtlReply, MotorCommand, AppliedCommand)}
         self.plot_feed = plots.PlotFeed()
         self.plot_subs: dict[Client, plots.Subscription] = {}
         self.cmd_publisher = TypedPublisher.of(session, self.keys, topics.JOINT_TARGETS)
@@ -132,11 +137,13 @@ class VizService:
             session.declare_subscriber(self.keys.odom, self._store(self.odom, Odometry)),
             session.declare_subscriber(self.keys.sim_status, self._store(self.status, SimStatus)),
             session.liveliness().declare_subscriber(self.keys.alive_any, self._on_alive, history=True),
+            session.liveliness().declare_subscriber(topics.ROUTER_ALIVE.full_key(), self._on_router_alive, history=True),
         ]
         self._declared += [
             session.declare_subscriber(self.keys.joints, self._plot_sample(JointState)),
             session.declare_subscriber(self.keys.motors, self._plot_sample(MotorCommand)),
             session.declare_subscriber(self.keys.bridge_targets, self._plot_sample(JointTargets)),
+            session.declare_subscriber(self.keys.applied, self._plot_sample(AppliedCommand)),
         ]
         if settings.ghost:
             self._declared.append(
@@ -167,6 +174,8 @@ class VizService:
                 return
             if isinstance(message, JointState):
                 feed.on_state(message.sim_time_s, message.q, message.tau)
+            elif isinstance(message, AppliedCommand):
+                feed.on_applied(message.sim_time_s, message.command.names, message.command.q)
             else:
                 feed.on_command(message.names, message.q)
 
@@ -197,6 +206,11 @@ class VizService:
         if service == "sim" and sample.kind == zenoh.SampleKind.PUT:
             # A (re)started sim may serve another robot or mode: fetch the description again.
             self._fetch_wanted.set()
+
+    def _on_router_alive(self, sample: zenoh.Sample) -> None:
+        with self.alive_lock:
+            self.router_alive = sample.kind == zenoh.SampleKind.PUT
+        logger.info("the router %s", "is alive" if self.router_alive else "left")
 
     # --- description ------------------------------------------------------------------
     def fetch_loop(self) -> None:
@@ -323,7 +337,7 @@ class VizService:
         targets, _ = self.targets.item
         joints, _ = self.joints.item
         with self.alive_lock:
-            alive = sorted(self.alive)
+            alive = sorted(self.alive | ({"router"} if self.router_alive else set()))
         message: dict[str, Any] = {
             "type": "status",
             "alive": alive,

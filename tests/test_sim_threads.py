@@ -1,0 +1,229 @@
+"""The sim's threading rule (docs/architecture.md, "Threads") and the races it closes.
+
+- MjData is touched only by the thread holding the physics lock: checked on the real Simulation and
+  SimService (real zenoh on loopback, real MuJoCo) while clients send commands, ctl requests,
+  ctl/advance, wildcard and malformed queries and the loop publishes states and statuses. A race
+  on MjData cannot be forced reliably (it needs a status read to land inside mj_step), so the test
+  checks the rule that prevents it: every MjData access, on any thread, with the lock held.
+- A ctl request whose client gave up is dropped, not run: no late reset; at most 16 wait at once.
+- info/robot pairs mode and episode from one value: a mode switch never shows the old mode with
+  the new episode.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+import traceback
+
+import pytest
+import zenoh
+
+from support import Latest, ctl, plain_client, wait_for
+from test_sim_process import wait_alive
+from zensim.robots import robot_files
+from zensim.schemas import Keys, SimStatus
+from zensim.sim.physics import Limits, Simulation
+from zensim.sim.service import PhysicsLock, SimService
+from zensim.sim.settings import SimSettings
+
+
+class GuardedSimulation(Simulation):
+    """The real Simulation; every access to its MjData from a thread without the physics lock is recorded."""
+
+    physics: PhysicsLock | None = None
+    offences: list[str]
+
+    @property
+    def data(self):  # type: ignore[override]
+        lock = self.physics
+        if lock is not None and not lock.held():
+            frames = traceback.extract_stack(limit=6)[:-1]
+            where = " <- ".join(f"{f.name}:{f.lineno}" for f in reversed(frames))
+            self.offences.append(f"{threading.current_thread().name}: {where}")
+        return self._data
+
+    @data.setter
+    def data(self, value) -> None:
+        self._data = value
+
+
+def serve_in_thread(router_endpoint: str, settings: SimSettings) -> tuple[SimService, GuardedSimulation, threading.Thread,
+                                                                           threading.Event, zenoh.Session]:
+    sim = GuardedSimulation.__new__(GuardedSimulation)
+    sim.offences = []
+    Simulation.__init__(sim, robot_files(settings.robot), settings.mode, Limits(max_kp=settings.max_kp,
+                        max_kd=settings.max_kd), watchdog_timeout_s=settings.watchdog_timeout_s)
+    session = plain_client(router_endpoint)
+    stop = threading.Event()
+    service = SimService(session, settings, sim, stop)
+    sim.physics = service.physics  # from here on, every MjData access must hold it
+    thread = threading.Thread(target=service.run, name="sim-loop", daemon=True)
+    thread.start()
+    return service, sim, thread, stop, session
+
+
+def bad_and_wildcard_queries(client: zenoh.Session, keys: Keys) -> None:
+    """What a careless or hostile client sends: replies made off the loop thread."""
+    for _ in client.get(f"{keys.root}/**", timeout=2.0):  # every queryable at once
+        pass
+    for verb in ("reset", "step"):
+        for _ in client.get(keys.ctl(verb), payload=b"{not json", timeout=2.0):
+            pass
+
+
+@pytest.mark.parametrize("clock", ["realtime", "lockstep"])
+def test_mjdata_is_touched_only_with_the_physics_lock_held(router_endpoint: str, robot_id: str, clock: str) -> None:
+    keys = Keys(robot_id)
+    settings = SimSettings(robot_id=robot_id, mode="fixed", clock=clock, status_rate_hz=100.0, state_rate_hz=250.0,
+                           watchdog_timeout_s=30.0)
+    service, sim, thread, stop, session = serve_in_thread(router_endpoint, settings)
+    try:
+        with plain_client(router_endpoint) as client:
+            status = Latest(client, keys.sim_status, SimStatus)
+            status.wait(what="a first status", timeout_s=15)
+            n = sim.robot.nu
+            motors = client.declare_publisher(keys.motors)
+            sent = threading.Event()
+
+            def commands() -> None:  # a controller streaming full-body commands meanwhile
+                while not sent.is_set():
+                    motors.put(json.dumps({"q": [0.1] * n}))
+                    time.sleep(0.002)
+
+            streamer = threading.Thread(target=commands, daemon=True)
+            streamer.start()
+            deadline = time.monotonic() + 3.0
+            rounds = 0
+            while time.monotonic() < deadline:
+                bad_and_wildcard_queries(client, keys)
+                for _ in client.get(keys.robot_info, timeout=2.0):
+                    pass
+                if clock == "lockstep":
+                    assert ctl(client, keys.ctl("advance"), {"q": [0.0] * n})["ok"]
+                else:
+                    assert ctl(client, keys.ctl("pause"))["ok"]
+                    assert ctl(client, keys.ctl("step"), {"n": 5})["ok"]
+                    assert ctl(client, keys.ctl("resume"))["ok"]
+                assert ctl(client, keys.ctl("reset"))["ok"]
+                rounds += 1
+            sent.set()
+            streamer.join(2)
+            last = status.wait(lambda m: m.seq > 100, what="statuses published meanwhile", timeout_s=10)
+            assert rounds >= 3
+            assert last.steps > 0 or last.resets > 0
+    finally:
+        stop.set()
+        thread.join(10)
+        service.close()
+        session.close()
+    assert not sim.offences, f"{len(sim.offences)} MjData accesses without the physics lock, e.g.:\n" + \
+        "\n".join(sorted(set(sim.offences))[:10])
+
+
+def test_a_reset_whose_client_gave_up_is_dropped_not_run(start_service, zsession: zenoh.Session, robot_id: str) -> None:
+    """A reset queued behind long steps, whose client stopped waiting after 1 s, must never happen later."""
+    keys = Keys(robot_id)
+    status = Latest(zsession, keys.sim_status, SimStatus)
+    start_service("sim", "--mode", "floating", "--paused", "true")
+    wait_alive(zsession, keys)
+    before = status.wait(what="a status")
+    long_steps = []
+
+    def step() -> None:  # 2 x 100000 steps keep the loop busy for seconds
+        long_steps.append(ctl(zsession, keys.ctl("step"), {"n": 100000}, timeout_s=120))
+
+    steppers = [threading.Thread(target=step) for _ in range(2)]
+    for stepper in steppers:
+        stepper.start()
+        time.sleep(0.2)
+    started = time.monotonic()
+    replies = list(zsession.get(keys.ctl("reset"), payload=b"{}", timeout=1.0))  # gives up after 1 s
+    gave_up_after = time.monotonic() - started
+    for stepper in steppers:
+        stepper.join(120)
+    assert len(long_steps) == 2 and any(s["ok"] for s in long_steps)
+    if gave_up_after < 0.9:
+        pytest.skip("the reset was answered before its client gave up: the loop was not busy long enough here")
+    # Either the client got a refusal in time, or nothing: never an ok after it stopped waiting.
+    assert all(r.ok is None or not json.loads(r.ok.payload.to_bytes())["ok"] for r in replies)
+    time.sleep(0.5)  # whatever would still run has run now
+    seq = status.value.seq
+    after = status.wait(lambda m: m.seq > seq, what="a fresh status")
+    assert after.resets == before.resets, "a reset ran after its client had given up"
+    assert after.episode == before.episode
+    assert after.steps > 0  # the steps did run (nothing was reset after them)
+
+
+def test_requests_beyond_16_waiting_are_answered_busy_at_once(start_service, zsession: zenoh.Session,
+                                                              robot_id: str) -> None:
+    """While the loop is busy, 16 requests may wait; the rest get `busy` at once instead of a queue slot."""
+    keys = Keys(robot_id)
+    start_service("sim", "--mode", "floating", "--paused", "true")
+    wait_alive(zsession, keys)
+    go = threading.Event()
+    answers: list[tuple[float, float, dict | None]] = []
+
+    def pause() -> None:
+        go.wait()
+        started = time.monotonic()
+        replies = [r for r in zsession.get(keys.ctl("pause"), payload=b"{}", timeout=30.0) if r.ok is not None]
+        answers.append((started, time.monotonic() - started,
+                        json.loads(replies[0].ok.payload.to_bytes()) if replies else None))
+
+    callers = [threading.Thread(target=pause) for _ in range(24)]
+    for caller in callers:  # ready before the loop gets busy: the burst then comes at once
+        caller.start()
+    step_done = []
+    stepper = threading.Thread(target=lambda: step_done.append(
+        (ctl(zsession, keys.ctl("step"), {"n": 100000}, timeout_s=120), time.monotonic())))
+    stepper.start()
+    time.sleep(0.3)
+    go.set()
+    for caller in callers:
+        caller.join(60)
+    stepper.join(120)
+    assert len(answers) == 24 and all(reply is not None for _, _, reply in answers), "every request gets one reply"
+    step_end = step_done[0][1]
+    if sum(started < step_end - 0.2 for started, _, _ in answers) < 24:
+        pytest.skip("the loop finished its steps before the burst was in: not busy long enough on this machine")
+    busy = [(t, reply) for _, t, reply in answers if not reply["ok"] and reply["error"].startswith("busy")]
+    assert len(busy) >= 24 - 16, [(round(t, 2), reply["ok"], reply["error"]) for _, t, reply in answers]
+    assert all(t < 5.0 for t, _ in busy), "a busy answer comes at once, not after the wait"
+
+
+def test_info_never_pairs_the_old_mode_with_the_new_episode(start_service, zsession: zenoh.Session,
+                                                            robot_id: str) -> None:
+    keys = Keys(robot_id)
+    start_service("sim", "--mode", "fixed")
+    wait_alive(zsession, keys)
+    seen: dict[str, set[str]] = {}
+    stop = threading.Event()
+
+    def ask() -> None:
+        while not stop.is_set():
+            for r in zsession.get(keys.robot_info + "?format=json", timeout=5.0):
+                if r.ok is not None:
+                    info = json.loads(r.ok.payload.to_bytes())
+                    seen.setdefault(info["episode"], set()).add(info["mode"])
+
+    askers = [threading.Thread(target=ask, daemon=True) for _ in range(3)]
+    for asker in askers:
+        asker.start()
+    episodes = set()
+    try:
+        for mode in ("floating", "fixed") * 4:
+            reply = ctl(zsession, keys.ctl("mode"), {"mode": mode}, timeout_s=30)
+            assert reply["ok"] and reply["mode"] == mode
+            episodes.add((reply["episode"], mode))
+    finally:
+        stop.set()
+        for asker in askers:
+            asker.join(10)
+    # What ctl/mode said of each new episode, info/robot says too, and never anything else.
+    for episode, mode in episodes:
+        assert seen.get(episode, {mode}) == {mode}, f"episode {episode}: info/robot said {seen[episode]}"
+    mixed = {e: modes for e, modes in seen.items() if len(modes) > 1}
+    assert not mixed, f"one episode described with two modes: {mixed}"
+    wait_for(lambda: len(seen) >= 4, 1, "info/robot answered across the switches")
