@@ -35,6 +35,8 @@ from zensim.schemas.bounds import vector_cap_bytes
 from . import switcher
 from .codec import NUM_MOTORS, CodecError, decode_low_cmd
 from .dds import UnitreeDds
+from .highlevel import HighLevel
+from .highlevel_dds import HighLevelDds
 from .idl import RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_
 from .lowlevel import LowCmdError, LowStateBuilder, motor_command
 from .settings import UnitreeSettings
@@ -89,6 +91,7 @@ class UnitreeAdapter:
         self.counters = Counters()
         self.sim_restarted = threading.Event()
         """Set when state/sim comes from another sim run: the loop learns the robot again."""
+        self.highlevel: HighLevel | None = None
         self.adopt(robot)
         self._joints_codec = Codec(JointState)
         self._imu_codec = Codec(Imu)
@@ -98,6 +101,10 @@ class UnitreeAdapter:
         self._ab_logged = False
         self._motors = TypedPublisher.of(session, keys, topics.MOTORS)
         self._status = TypedPublisher.of(session, keys, topics.UNITREE_STATUS)
+        # The sport service, arm_sdk and SportModeState_ (highlevel.py): its controller's commands go
+        # out on the same cmd/motors publisher as forwarded LowCmd_.
+        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._motors.put, self._cap_bytes)
+        self.highlevel.adopt(robot.joint_names, self._cap_bytes)
         self._subscribers = [
             session.declare_subscriber(keys.joints, self._on_joints),
             session.declare_subscriber(keys.imu, self._on_imu),
@@ -111,6 +118,8 @@ class UnitreeAdapter:
             self._builder = LowStateBuilder(len(robot.joint_names), self._settings.mode_machine)
             self._cap_bytes = vector_cap_bytes(robot.joint_names)
             self.sim_restarted.clear()
+        if self.highlevel is not None:
+            self.highlevel.adopt(robot.joint_names, self._cap_bytes)
 
     # --- zensim -> DDS (zenoh threads) -------------------------------------------
 
@@ -140,8 +149,12 @@ class UnitreeAdapter:
                 self._dds.write_lowstate(data)
                 self.counters.lowstate_published += 1
                 self.counters.sim_time_s = message.sim_time_s
+                pair = self._builder.pair()
         except (DecodeError, ValueError, OSError) as exc:
             self._state_log.warning("cannot turn state/%s into LowState_: %s", which, exc)
+            return
+        if pair is not None and self.highlevel is not None:
+            self.highlevel.on_state(*pair)  # the locomotion controller ticks on the sim's states
 
     # --- DDS -> zensim (the DDS thread) --------------------------------------------
 
@@ -197,6 +210,8 @@ class UnitreeAdapter:
                 return
             identity = request.header.identity
             code, data = switcher.answer(identity.api_id)
+            if identity.api_id == switcher.API_ID_RELEASE_MODE and self.highlevel is not None:
+                self.highlevel.release()  # a low-level program takes the robot from the sport service
             with self._lock:
                 self.counters.motion_switcher_requests += 1
             logger.info("motion switcher: api %d -> code %d %s", identity.api_id, code, data)
@@ -216,6 +231,8 @@ class UnitreeAdapter:
                 self.handle_lowcmd(data)
             if self._dds.has_request():
                 self.handle_requests()
+            if self.highlevel is not None:
+                self.highlevel.poll()
 
     # --- status ----------------------------------------------------------------------
 
@@ -231,12 +248,15 @@ class UnitreeAdapter:
                 motion_switcher_requests=c.motion_switcher_requests, sim_time_s=c.sim_time_s,
                 command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
                 last_error=c.last_error,
+                **(self.highlevel.status_fields() if self.highlevel is not None else {}),
             )
         self._status.put(status)
 
     def close(self) -> None:
         for subscriber in self._subscribers:
             subscriber.undeclare()
+        if self.highlevel is not None:
+            self.highlevel.close()
         self._motors.undeclare()
         self._status.undeclare()
 
