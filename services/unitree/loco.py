@@ -24,6 +24,10 @@ welded: with softer arms the arm swing turns the robot and a straight command cu
 arm_sdk: a LowCmd_ on rt/arm_sdk carries targets for the waist and arm motors (12..28) and, in motor 29's
 q, a weight w in [0, 1]; each of those motors then gets w x arm_sdk + (1 - w) x controller for q, dq,
 tau, kp and kd (the legs stay with the controller). The newest arm_sdk command holds until the next.
+One exception: the waist (12..14) blends its targets but keeps the controller's gains. The policy
+balances the robot as if the upper body were rigid; measured in the sim, the SDK example's kp 60 on the
+waist with the arms lifted lets the pelvis run forward and the robot fall within 3 s, while with the
+waist stiff it stands through the whole example.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from .walk_policy import (CONTROL_DT_S, DEFAULT_LEG_Q, LEG_KD, LEG_KP, NUM_ACTIO
 NUM_JOINTS: Final = 29
 """The G1 29-DoF: 0-11 legs, 12-14 waist, 15-28 arms (Unitree's motor order = the sim's joint order)."""
 ARM_SDK_FIRST: Final = 12
+NUM_WAIST: Final = 3
 ARM_SDK_WEIGHT_SLOT: Final = 29
 """kNotUsedJoint: its q is the arm_sdk weight."""
 
@@ -217,6 +222,12 @@ class LocoController:
         state = self.state
         if not state.active:
             return None
+        if self._next_tick_s is not None and now_s < self._next_tick_s - 2 * CONTROL_DT_S:
+            # Sim time went back (a reset, a restarted sim): start the clocks over from this instant;
+            # the FSM state stays, a ramp restarts from the present pose, a velocity command lapses.
+            self._next_tick_s = None
+            self._ramp_start_s = None
+            state.velocity = Velocity()
         due = self._next_tick_s is None or now_s >= self._next_tick_s - 1e-9
         if not (due or force):
             return None
@@ -282,5 +293,8 @@ class LocoController:
         w, s = arm.weight, slice(ARM_SDK_FIRST, NUM_JOINTS)
         for name in ("q", "dq", "kp", "kd", "tau"):
             mine = getattr(targets, name)
-            mine[s] = w * getattr(arm, name) + (1.0 - w) * mine[s]
+            blended = w * getattr(arm, name) + (1.0 - w) * mine[s]
+            if name in ("kp", "kd"):  # the waist keeps the controller's stiffness (WAIST_KEEPS_GAINS)
+                blended[:NUM_WAIST] = mine[ARM_SDK_FIRST:ARM_SDK_FIRST + NUM_WAIST]
+            mine[s] = blended
         return targets

@@ -1,0 +1,312 @@
+"""The G1's high-level API through Unitree's own SDK (unitree_sdk2_python, unchanged) against `zensim up --unitree`:
+LocoClient (the "sport" service) walks, turns and damps the floating G1 with Unitree's walking policy; the
+SDK's arm_sdk and loco examples run as users run them; a lockstep walk re-simulates to 0 divergence.
+
+Needs ZENSIM_UNITREE_SDK2_PYTHON (set by .ci/run; scripts/test then installs the SDK into the venv).
+The walking tests share one running stack (module scope): it walks in sim time at real-time speed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from support import Latest, Service, ctl, free_port, plain_client, wait_for
+from unitree_sdk import unused_domain_id
+from zensim.schemas import Codec, JointState, Keys, MotorCommand, Odometry, SimStatus, UnitreeStatus
+
+SDK = os.environ.get("ZENSIM_UNITREE_SDK2_PYTHON", "")
+try:
+    import unitree_sdk2py  # noqa: F401
+    SDK_INSTALLED = True
+except ImportError:
+    SDK_INSTALLED = False
+pytestmark = [
+    pytest.mark.skipif(not SDK, reason="ZENSIM_UNITREE_SDK2_PYTHON is unset: Unitree's unitree_sdk2_python is the "
+                                       "client of these tests (.ci/run points it at ../shared/unitree_sdk2_python)"),
+    pytest.mark.skipif(bool(SDK) and not SDK_INSTALLED,
+                       reason="unitree_sdk2py is not installed in this venv: run scripts/test with "
+                              "ZENSIM_UNITREE_SDK2_PYTHON set (it pip-installs it --no-deps)"),
+]
+HERE = Path(__file__).parent
+ARMS = list(range(15, 29))
+
+
+def yaw_of(quat_wxyz) -> float:
+    w, x, y, z = quat_wxyz
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+class Loco:
+    """tests/sdk_loco.py: Unitree's LocoClient in its own process, one call per line."""
+
+    def __init__(self, domain: int, log: Path) -> None:
+        self._log = log.open("wb")
+        self.proc = subprocess.Popen([sys.executable, str(HERE / "sdk_loco.py"), str(domain)], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=self._log, text=True)
+        assert json.loads(self.proc.stdout.readline()) == {"ready": True}
+
+    def call(self, *call):  # noqa: ANN201
+        self.proc.stdin.write(json.dumps(call) + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline()
+        assert line, f"sdk_loco.py exited during {call}"
+        return json.loads(line)["result"]
+
+    def close(self) -> None:
+        self.proc.stdin.close()
+        self.proc.stdout.close()
+        try:
+            self.proc.wait(10)
+        finally:
+            self._log.close()
+
+
+class Stack:
+    """`zensim up --unitree` (floating G1, 500 Hz states, no viewer) and a plain zenoh client watching it."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.robot_id = "t" + os.urandom(5).hex()
+        self.keys = Keys(self.robot_id)
+        self.domain = unused_domain_id()
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.tmp = tmp
+        env = dict(os.environ, ZENSIM_ROBOT_ID=self.robot_id, ZENSIM_UNITREE_DOMAIN_ID=str(self.domain),
+                   PYTHONUNBUFFERED="1")
+        self.log_path = tmp / "up.log"
+        self._log = self.log_path.open("wb")
+        self.up = subprocess.Popen([sys.executable, "-m", "zensim", "up", "--unitree", "--viz", "false",
+                                    "--router-endpoint", self.endpoint],
+                                   env=env, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
+        self.session = plain_client(self.endpoint, wait_for_router=True).__enter__()
+        self.odom = Latest(self.session, self.keys.odom, Odometry)
+        self.status = Latest(self.session, self.keys.sim_status, SimStatus)
+        self.status.keep_history = True
+        self.unitree = Latest(self.session, self.keys.unitree_status, UnitreeStatus)
+        self.unitree.wait(timeout_s=90, what="the adapter's status")
+        self.odom.wait(timeout_s=30, what="the sim's odometry")
+
+    def sim_time(self) -> float:
+        return self.odom.value.sim_time_s
+
+    def run_for(self, seconds: float) -> Odometry:
+        """Wait `seconds` of sim time (at real time, with room for a loaded machine)."""
+        end = self.sim_time() + seconds
+        return self.odom.wait(lambda m: m.sim_time_s >= end, 10 + 4 * seconds, f"{seconds} s of sim time")
+
+    def fell_since(self, index: int) -> bool:
+        return any(s.fallen for s in self.status.history[index:])
+
+    def close(self) -> None:
+        self.session.close()
+        self.up.send_signal(signal.SIGINT)
+        try:
+            self.up.wait(15)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.up.pid, signal.SIGKILL)
+        self._log.close()
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory, request):
+    tmp = tmp_path_factory.mktemp("loco")
+    s = Stack(tmp)
+    yield s
+    s.close()
+    if request.session.testsfailed:
+        print(f"\n----- zensim up log -----\n{s.log_path.read_text()[-20000:]}")
+
+
+def stand_up(stack: Stack, loco: Loco) -> None:
+    """From the sim's spawn squat: squat-to-stand (FSM 706), which ends balancing on the policy."""
+    assert ctl(stack.session, stack.keys.ctl("reset"))["ok"]
+    assert loco.call("SetFsmId", 706) == 0
+    stack.run_for(3.0)
+    assert stack.odom.value.pos[2] > 0.74, stack.odom.value  # the policy's stance (the squat: 0.725 m)
+
+
+def test_loco_client_squat_to_stand_walk_stop_turn_damp(stack):
+    loco = Loco(stack.domain, stack.tmp / "loco.log")
+    try:
+        assert loco.call("GetFsmId") == [0, 0]  # passive until asked
+        first_status = len(stack.status.history)
+        stand_up(stack, loco)
+        assert loco.call("GetFsmId") == [0, 706]
+        start = stack.odom.value
+        loco.call("Move", 0.3, 0, 0, True)  # continous_move: duration 864000 s
+        stack.run_for(0.5)
+        assert loco.call("odommodestate")["mode"] == 3  # walking
+        walked = stack.run_for(10.0)
+        loco.call("StopMove")
+        forward, lateral = walked.pos[0] - start.pos[0], walked.pos[1] - start.pos[1]
+        assert 2.0 <= forward <= 4.0, (start.pos, walked.pos)
+        assert abs(lateral) < 0.5, (start.pos, walked.pos)
+        # SportModeState_ read with the SDK's own type: the sim's ground truth.
+        state = loco.call("odommodestate")
+        assert state is not None and abs(state["position"][0] - stack.odom.value.pos[0]) < 0.3, state
+        # Stands still after StopMove (the policy balances in place).
+        settled = stack.run_for(1.0)
+        later = stack.run_for(3.0)
+        drift = math.dist(settled.pos[:2], later.pos[:2])
+        assert drift < 0.25, (settled.pos, later.pos)
+        assert loco.call("odommodestate")["mode"] == 1  # standing
+        # Turns in place.
+        loco.call("Move", 0, 0, 0.3, True)
+        turned = stack.run_for(5.0)
+        loco.call("StopMove")
+        turn = (yaw_of(turned.quat_wxyz) - yaw_of(later.quat_wxyz) + math.pi) % (2 * math.pi) - math.pi
+        assert 0.8 < turn < 2.0, turn
+        assert math.dist(turned.pos[:2], later.pos[:2]) < 0.5, (later.pos, turned.pos)
+        assert not stack.fell_since(first_status), "the robot fell while walking"
+        # Unsupported calls get the robot's error codes, not silence.
+        assert loco.call("SetTaskId", 0) == 3203  # arm tasks (wave hand): not implemented
+        assert loco.call("SetFsmId", 12345) == 3204  # not an FSM id: parameter error
+        assert loco.call("SetFsmId", 706) == 0 and loco.call("GetFsmId") == [0, 706]  # the FSM toggles to squat
+        stack.run_for(2.0)
+        # Damp lets it fold.
+        stand_up(stack, loco)
+        upright = stack.odom.value.pos[2]
+        loco.call("Damp")
+        folded = stack.run_for(3.0)
+        assert folded.pos[2] < upright - 0.15, (upright, folded.pos)
+        assert stack.unitree.value.loco_fsm_id == 1 and stack.unitree.value.policy_steps > 500
+    finally:
+        loco.close()
+
+
+class Recorder:
+    """Joint states and the commands the controller sends, stamped with their arrival (wall) time."""
+
+    def __init__(self, stack: Stack) -> None:
+        self.joints: list[tuple[float, JointState]] = []
+        self.motors: list[tuple[float, MotorCommand]] = []
+        jc, mc = Codec(JointState), Codec(MotorCommand)
+        self._subs = [
+            stack.session.declare_subscriber(stack.keys.joints, lambda s: self.joints.append(
+                (time.monotonic(), jc.decode(s.payload.to_bytes(), str(s.encoding))))),
+            stack.session.declare_subscriber(stack.keys.motors, lambda s: self.motors.append(
+                (time.monotonic(), mc.decode(s.payload.to_bytes(), str(s.encoding))))),
+        ]
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+
+
+def test_sdk_arm7_example_moves_the_arms_over_the_standing_robot(stack):
+    loco = Loco(stack.domain, stack.tmp / "loco-arm.log")
+    try:
+        stand_up(stack, loco)
+    finally:
+        loco.close()
+    first_status = len(stack.status.history)
+    recorder = Recorder(stack)
+    example = Path(SDK) / "example/g1/high_level/g1_arm7_sdk_dds_example.py"
+    done = subprocess.run([sys.executable, str(HERE / "run_sdk_example.py"), str(stack.domain), str(example), "lo"],
+                          input="\n", capture_output=True, text=True, timeout=90)
+    time.sleep(1.0)
+    recorder.close()
+    assert "Done!" in done.stdout, done.stdout + done.stderr
+    assert not stack.fell_since(first_status), "the robot fell under arm_sdk"
+    assert stack.unitree.value.arm_sdk_received > 500 and stack.unitree.value.arm_sdk_rejected == 0
+    # Arm joints follow the commanded targets (RMS after a 50 ms lag) while arm_sdk holds weight 1 and
+    # lifts the arms (the example's stages 1-3: its first 18 s).
+    t0 = recorder.motors[0][0]
+    motor_times = np.array([t for t, _ in recorder.motors])
+    errors = []
+    for t, state in recorder.joints:
+        if not t0 + 2.0 < t < t0 + 17.0:
+            continue
+        i = np.searchsorted(motor_times, t - 0.05) - 1
+        if i < 0:
+            continue
+        target = np.asarray(recorder.motors[i][1].q)[ARMS]
+        errors.append(np.asarray(state.q)[ARMS] - target)
+    rms = float(np.sqrt(np.mean(np.square(errors))))
+    assert rms < 0.05, rms
+    lifted = max(abs(s.q[18]) for t, s in recorder.joints)  # left elbow to pi/2 at the top
+    assert lifted > 1.2, lifted
+    # The release (stage 4, weight 1 -> 0 over 3 s) and after: no jump in the arms.
+    steps = [np.max(np.abs(np.asarray(b.q)[ARMS] - np.asarray(a.q)[ARMS]))
+             for (_, a), (_, b) in zip(recorder.joints, recorder.joints[1:]) if b.seq == a.seq + 1]
+    assert max(steps) < 0.02, max(steps)
+
+
+def test_sdk_loco_client_example_through_its_stdin(stack):
+    assert ctl(stack.session, stack.keys.ctl("reset"))["ok"]
+    example = Path(SDK) / "example/g1/high_level/g1_loco_client_example.py"
+    proc = subprocess.Popen([sys.executable, str(HERE / "run_sdk_example.py"), str(stack.domain), str(example), "lo"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    output: list[str] = []
+    reader = threading.Thread(target=lambda: output.extend(proc.stdout), daemon=True)
+    reader.start()
+
+    def choose(line: str, seconds: float) -> Odometry:
+        proc.stdin.write(line + "\n")
+        proc.stdin.flush()
+        return stack.run_for(seconds)
+
+    try:
+        first_status = len(stack.status.history)
+        choose("", 1.0)  # "Press Enter to continue..."
+        stood = choose("1", 4.0)  # Damp, 0.5 s, Squat2StandUp
+        assert stood.pos[2] > 0.7 and stack.unitree.value.loco_fsm_id == 706, stood
+        moved = choose("3", 2.5)  # Move(0.3, 0, 0) for 1 s
+        assert moved.pos[0] - stood.pos[0] > 0.1, (stood.pos, moved.pos)
+        turned = choose("5", 2.5)  # Move(0, 0, 0.3) for 1 s
+        assert abs(yaw_of(turned.quat_wxyz) - yaw_of(moved.quat_wxyz)) > 0.1
+        assert not stack.fell_since(first_status)
+        damped = choose("0", 2.5)  # Damp
+        assert stack.unitree.value.loco_fsm_id == 1 and damped.pos[2] < turned.pos[2] - 0.05
+    finally:
+        proc.stdin.close()
+        proc.wait(15)
+        reader.join(5)
+    text = "".join(output)
+    for name in ("Squat2StandUp", "move forward", "move rotate", "damp"):
+        assert f"Test: {name}" in text, text
+    assert "Traceback" not in text.split("EOFError")[0], text  # only the end of stdin ends it
+
+
+def test_lockstep_walk_is_recorded_and_resimulates_to_zero(start_service, zsession, robot_id, tmp_path):
+    """Under `clock: lockstep` the controller is the clock; the recorder sees its commands; resim: 0 divergence."""
+    keys = Keys(robot_id)
+    domain = unused_domain_id()
+    start_service("sim", "--clock", "lockstep")
+    odom = Latest(zsession, keys.odom, Odometry)
+    odom.wait(timeout_s=60, what="the initial state")
+    adapter = start_service("unitree", "--domain-id", str(domain), "--interface", "lo")
+    wait_for(lambda: "unitree adapter up" in adapter.log() or not adapter.alive(), 60, "the adapter to start")
+    path = tmp_path / "walk.mcap"
+    recorder = start_service("record", "-o", str(path))
+    wait_for(lambda: "saved the sim's description" in recorder.log() or not recorder.alive(), 30, "the recorder")
+    loco = Loco(domain, tmp_path / "loco.log")
+    try:
+        assert loco.call("SetFsmId", 706) == 0
+        odom.wait(lambda m: m.sim_time_s >= 3.0, 120, "3 s of lockstep sim time")
+        loco.call("Move", 0.3, 0, 0, True)
+        walked = odom.wait(lambda m: m.sim_time_s >= 6.0, 120, "6 s of lockstep sim time")
+        assert walked.pos[0] > 0.4, walked.pos
+        loco.call("ZeroTorque")
+    finally:
+        loco.close()
+    adapter.signal(signal.SIGTERM)  # stop the clock: no more commands
+    adapter.proc.wait(15)
+    time.sleep(0.5)
+    recorder.signal(signal.SIGTERM)
+    assert recorder.proc.wait(15) == 0, recorder.log()
+    result = subprocess.run([sys.executable, "-m", "zensim", "resim", str(path)], capture_output=True, text=True,
+                            timeout=180)
+    assert result.returncode == 0, result.stderr
+    assert "lockstep recording" in result.stdout, result.stdout
+    assert "joint position 0 rad, base position 0 m, base orientation 0 rad" in result.stdout, result.stdout
