@@ -98,7 +98,14 @@ class HighLevel:
             self._tick(force=False)
 
     def _tick(self, force: bool) -> None:
-        if not self.enabled or self._latest is None:
+        if not self.enabled:
+            return
+        if self._latest is None:
+            if force:
+                # No state seen yet (under lockstep the sim published its first one before we came):
+                # an empty command changes nothing but, under lockstep, advances one period and so
+                # brings the state the controller starts from.
+                self._publish(MotorCommand(names=(), q=()))
             return
         joints, imu = self._latest
         targets = self.controller.tick(joints.sim_time_s, np.asarray(joints.q), np.asarray(joints.dq),
