@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from support import Latest, Service, ctl, free_port, plain_client, wait_for
-from unitree_sdk import unused_domain_id
+from unitree_sdk import SdkClient, unused_domain_id
 from zensim.schemas import Codec, JointState, Keys, MotorCommand, Odometry, SimStatus, UnitreeStatus
 
 SDK = os.environ.get("ZENSIM_UNITREE_SDK2_PYTHON", "")
@@ -39,6 +39,7 @@ pytestmark = [
                               "ZENSIM_UNITREE_SDK2_PYTHON set (it pip-installs it --no-deps)"),
 ]
 HERE = Path(__file__).parent
+STACK_ENV = json.loads(os.environ.get("LOCO_STACK_ENV", "{}"))
 ARMS = list(range(15, 29))
 
 
@@ -73,16 +74,21 @@ class Loco:
 
 
 class Stack:
-    """`zensim up --unitree` (floating G1, 500 Hz states, no viewer) and a plain zenoh client watching it."""
+    """`zensim up --unitree` (floating G1, 500 Hz states, no viewer) and a plain zenoh client watching it.
 
-    def __init__(self, tmp: Path) -> None:
+    `clock` "lockstep" makes the controller the clock: sim time then runs at the pace of the adapter's
+    loop, whatever else loads the machine (a realtime sim on a machine with a load average of 15 on 2
+    cores stalls for up to 90 ms, and a 50 Hz walking policy whose commands land that late stumbles).
+    """
+
+    def __init__(self, tmp: Path, clock: str = "realtime") -> None:
         self.robot_id = "t" + os.urandom(5).hex()
         self.keys = Keys(self.robot_id)
         self.domain = unused_domain_id()
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.tmp = tmp
         env = dict(os.environ, ZENSIM_ROBOT_ID=self.robot_id, ZENSIM_UNITREE_DOMAIN_ID=str(self.domain),
-                   PYTHONUNBUFFERED="1")
+                   PYTHONUNBUFFERED="1", ZENSIM_SIM_CLOCK=clock, **STACK_ENV)
         self.log_path = tmp / "up.log"
         self._log = self.log_path.open("wb")
         self.up = subprocess.Popen([sys.executable, "-m", "zensim", "up", "--unitree", "--viz", "false",
@@ -94,15 +100,16 @@ class Stack:
         self.status.keep_history = True
         self.unitree = Latest(self.session, self.keys.unitree_status, UnitreeStatus)
         self.unitree.wait(timeout_s=90, what="the adapter's status")
-        self.odom.wait(timeout_s=30, what="the sim's odometry")
+        if clock == "realtime":  # under lockstep time stands still (no state) until the controller starts
+            self.odom.wait(timeout_s=30, what="the sim's odometry")
 
     def sim_time(self) -> float:
-        return self.odom.value.sim_time_s
+        return self.odom.wait(timeout_s=30, what="the sim's odometry").sim_time_s
 
     def run_for(self, seconds: float) -> Odometry:
-        """Wait `seconds` of sim time (at real time, with room for a loaded machine)."""
+        """Wait `seconds` of sim time (with room for a loaded machine)."""
         end = self.sim_time() + seconds
-        return self.odom.wait(lambda m: m.sim_time_s >= end, 10 + 4 * seconds, f"{seconds} s of sim time")
+        return self.odom.wait(lambda m: m.sim_time_s >= end, 10 + 6 * seconds, f"{seconds} s of sim time")
 
     def fell_since(self, index: int) -> bool:
         return any(s.fallen for s in self.status.history[index:])
@@ -117,30 +124,46 @@ class Stack:
         self._log.close()
 
 
-@pytest.fixture(scope="module")
-def stack(tmp_path_factory, request):
-    tmp = tmp_path_factory.mktemp("loco")
-    s = Stack(tmp)
+def _stack(tmp_path_factory, request, clock: str):  # noqa: ANN202
+    s = Stack(tmp_path_factory.mktemp(f"loco-{clock}"), clock)
     yield s
     s.close()
     if request.session.testsfailed:
-        print(f"\n----- zensim up log -----\n{s.log_path.read_text()[-20000:]}")
+        print(f"\n----- zensim up ({clock}) log -----\n{s.log_path.read_text()[-20000:]}")
 
 
-def stand_up(stack: Stack, loco: Loco) -> None:
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory, request):
+    """The realtime stack, for Unitree's examples (they pace themselves by the wall clock)."""
+    yield from _stack(tmp_path_factory, request, "realtime")
+
+
+@pytest.fixture(scope="module")
+def lockstep_stack(tmp_path_factory, request):
+    """The same stack under `clock: lockstep`, for the walk figures (10 s of sim time, in a few s)."""
+    yield from _stack(tmp_path_factory, request, "lockstep")
+
+
+def stand_up(stack: Stack, loco: Loco, reset: bool = True) -> None:
     """From the sim's spawn squat: squat-to-stand (FSM 706), which ends balancing on the policy."""
-    assert ctl(stack.session, stack.keys.ctl("reset"))["ok"]
+    if reset:
+        assert ctl(stack.session, stack.keys.ctl("reset"))["ok"]
+        # Let the adapter see the reset first (sim time going back restarts the controller's mode): a
+        # request that raced it would be judged against the pose before the reset.
+        stack.odom.wait(lambda m: m.sim_time_s < 1.0, 10, "the state after the reset")
+        stack.run_for(0.2)
     assert loco.call("SetFsmId", 706) == 0
     stack.run_for(3.0)
     assert stack.odom.value.pos[2] > 0.74, stack.odom.value  # the policy's stance (the squat: 0.725 m)
 
 
-def test_loco_client_squat_to_stand_walk_stop_turn_damp(stack):
+def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
+    stack = lockstep_stack
     loco = Loco(stack.domain, stack.tmp / "loco.log")
     try:
-        assert loco.call("GetFsmId") == [0, 0]  # passive until asked
+        assert loco.call("GetFsmId") == [0, 0]  # passive until asked (under lockstep: no time passes)
         first_status = len(stack.status.history)
-        stand_up(stack, loco)
+        stand_up(stack, loco, reset=False)
         assert loco.call("GetFsmId") == [0, 706]
         start = stack.odom.value
         loco.call("Move", 0.3, 0, 0, True)  # continous_move: duration 864000 s
@@ -149,6 +172,10 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(stack):
         walked = stack.run_for(10.0)
         loco.call("StopMove")
         forward, lateral = walked.pos[0] - start.pos[0], walked.pos[1] - start.pos[1]
+        walk_status = stack.status.history[first_status:]
+        print(f"\nsim rtf min {min(x.rtf for x in walk_status):.2f} median {np.median([x.rtf for x in walk_status]):.2f}, "
+              f"step jitter p99 max {max(x.step_jitter_p99_s for x in walk_status) * 1e3:.1f} ms; "
+              f"heading {yaw_of(walked.quat_wxyz) - yaw_of(start.quat_wxyz):+.3f} rad; {forward:.2f} m, {lateral:+.2f} m")
         assert 2.0 <= forward <= 4.0, (start.pos, walked.pos)
         assert abs(lateral) < 0.5, (start.pos, walked.pos)
         # SportModeState_ read with the SDK's own type: the sim's ground truth.
@@ -168,6 +195,8 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(stack):
         assert 0.8 < turn < 2.0, turn
         assert math.dist(turned.pos[:2], later.pos[:2]) < 0.5, (later.pos, turned.pos)
         assert not stack.fell_since(first_status), "the robot fell while walking"
+        print(f"\nover the wire: walked {forward:.2f} m forward, {lateral:+.2f} m lateral in 10 s; "
+              f"{drift:.3f} m in 3 s after StopMove; turned {turn:+.2f} rad in 5 s")
         # Unsupported calls get the robot's error codes, not silence.
         assert loco.call("SetTaskId", 0) == 3203  # arm tasks (wave hand): not implemented
         assert loco.call("SetFsmId", 12345) == 3204  # not an FSM id: parameter error
@@ -233,16 +262,23 @@ def test_sdk_arm7_example_moves_the_arms_over_the_standing_robot(stack):
         target = np.asarray(recorder.motors[i][1].q)[ARMS]
         errors.append(np.asarray(state.q)[ARMS] - target)
     rms = float(np.sqrt(np.mean(np.square(errors))))
+    print(f"\narm_sdk: arm RMS {rms:.4f} rad after a 50 ms lag over {len(errors)} states")
     assert rms < 0.05, rms
     lifted = max(abs(s.q[18]) for t, s in recorder.joints)  # left elbow to pi/2 at the top
     assert lifted > 1.2, lifted
     # The release (stage 4, weight 1 -> 0 over 3 s) and after: no jump in the arms.
     steps = [np.max(np.abs(np.asarray(b.q)[ARMS] - np.asarray(a.q)[ARMS]))
              for (_, a), (_, b) in zip(recorder.joints, recorder.joints[1:]) if b.seq == a.seq + 1]
+    print(f"largest change of an arm joint between consecutive states: {max(steps):.4f} rad")
     assert max(steps) < 0.02, max(steps)
 
 
 def test_sdk_loco_client_example_through_its_stdin(stack):
+    # The robot as after boot: in the spawn squat, the controller passive (the motion switcher's
+    # ReleaseMode). Its first choice damps for 0.5 s before standing up: from a robot balancing on the
+    # policy, caught with one foot in the air, that drops it sideways, as it would drop a real one.
+    assert SdkClient(stack.domain).call(1003) == (0, "")
+    wait_for(lambda: not stack.unitree.value.loco_active, 10, "the controller released")
     assert ctl(stack.session, stack.keys.ctl("reset"))["ok"]
     example = Path(SDK) / "example/g1/high_level/g1_loco_client_example.py"
     proc = subprocess.Popen([sys.executable, str(HERE / "run_sdk_example.py"), str(stack.domain), str(example), "lo"],
@@ -254,7 +290,13 @@ def test_sdk_loco_client_example_through_its_stdin(stack):
     def choose(line: str, seconds: float) -> Odometry:
         proc.stdin.write(line + "\n")
         proc.stdin.flush()
-        return stack.run_for(seconds)
+        trace = []
+        end = stack.sim_time() + seconds
+        while stack.sim_time() < end:
+            trace.append(stack.odom.value)
+            stack.run_for(0.25)
+        print(f"\n{line!r}: " + " ".join(f"({m.sim_time_s:.2f} {m.pos[0]:+.2f} {m.pos[1]:+.2f} {m.pos[2]:.2f})" for m in trace))
+        return stack.odom.value
 
     try:
         first_status = len(stack.status.history)
@@ -272,6 +314,7 @@ def test_sdk_loco_client_example_through_its_stdin(stack):
         proc.stdin.close()
         proc.wait(15)
         reader.join(5)
+        proc.stdout.close()
     text = "".join(output)
     for name in ("Squat2StandUp", "move forward", "move rotate", "damp"):
         assert f"Test: {name}" in text, text

@@ -64,14 +64,20 @@ def test_squat_to_stand_hands_over_to_the_policy_and_toggles_back():
     assert not controller.state.walking
 
 
-def test_time_going_back_restarts_the_clocks():
+def test_a_sim_reset_restarts_the_mode_from_the_spawn_pose():
     controller = LocoController()
     controller.set_fsm(500)
     for t in np.arange(0, 3.0, 0.02):
         tick(controller, float(t))
+    assert controller.state.walking
     controller.set_velocity(0.3, 0, 0, 100.0, 3.0)
-    assert tick(controller, 0.0) is not None  # a reset: sim time 0 again
-    assert not any(controller.command_now(0.5))  # the velocity command lapsed with it
+    squat = tick(controller, 0.0, q=np.zeros(NUM_JOINTS))  # a reset: sim time 0 again
+    assert not controller.state.walking and controller.state.fsm_id == 500  # standing up again first
+    assert np.allclose(squat.q, 0.0)  # the ramp starts from the present pose
+    assert not any(controller.command_now(0.5))  # the velocity command lapsed
+    for t in np.arange(0.02, 3.0, 0.02):
+        tick(controller, float(t))
+    assert controller.state.walking
 
 
 def test_arm_sdk_blends_arms_by_weight_keeps_the_waist_stiff_and_leaves_the_legs():

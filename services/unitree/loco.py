@@ -12,10 +12,12 @@ FSM ids (those of unitree_sdk2's LocoClient):
     3    sit              ramp to the squat, then hold it
     500  start            stand up if needed, then balance and walk (the policy) at the commanded velocity
     702  lie-to-stand     as squat-to-stand (a ramp to the stance: works from a crouch, not from lying flat)
-    706  squat-to-stand   ramp to the stance in STAND_UP_S, then as start;
-                          sent while standing or walking: stand-to-squat
+    706  squat-to-stand   ramp through the squat to the stance (SQUAT_S + STAND_UP_S), then as start;
+                          sent while standing (balancing or walking on the policy): stand-to-squat
 Before the first FSM request the controller is passive (sends nothing): a low-level program on
-rt/lowcmd has the robot to itself until someone asks the sport service for a mode.
+rt/lowcmd has the robot to itself until someone asks the sport service for a mode; the motion switcher's
+ReleaseMode makes it passive again. A sim reset (sim time going back) restarts the current mode from the
+spawn squat (walking: it stands up first).
 
 Walking runs the policy every CONTROL_DT_S of sim time on the 12 leg joints with its trained gains; the
 waist and arms are held stiff at 0 rad (UPPER_KP/UPPER_KD), as in training, where the upper body was
@@ -33,6 +35,7 @@ waist stiff it stands through the whole example.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -76,6 +79,12 @@ MAX_VX: Final = 1.0
 MAX_VY: Final = 0.5
 MAX_WZ: Final = 1.0
 """Velocity commands are clipped to these (m/s, m/s, rad/s): the range the policy handles."""
+HEADING_KP: Final = 1.0
+HEADING_MAX_WZ: Final = 0.3
+"""Heading hold while walking with no yaw rate commanded: yaw rate = HEADING_KP x heading error (1/s),
+at most HEADING_MAX_WZ rad/s. The policy has no heading in its observation, so a straight command drifts
+in yaw with every disturbance (measured over the wire on a loaded machine: 1.2 m sideways in 10 s);
+the robot's own controller keeps its heading from the IMU the same way."""
 MAX_DURATION_S: Final = 864000.0
 """LocoClient.Move(continous_move=True) sends 864000 s."""
 
@@ -147,6 +156,8 @@ class LocoController:
         self._then_walk = False
         self._action = np.zeros(NUM_ACTIONS, np.float32)
         self._next_tick_s: float | None = None
+        self._last_now_s: float | None = None
+        self._heading_ref: float | None = None
         self._leg_targets = DEFAULT_LEG_Q.copy()
         self.policy_steps = 0
 
@@ -157,12 +168,12 @@ class LocoController:
         if fsm_id not in FSM_IDS:
             raise ValueError(f"FSM id {fsm_id} is not one of {FSM_IDS}")
         state = self.state
-        standing = state.active and (state.walking or (state.fsm_id in (FSM_SQUAT_STAND, FSM_START, FSM_LIE_TO_STAND)
-                                                       and self._ramp_to is STAND_Q))
+        standing = state.active and state.walking  # a finished stand-up hands over to walking
         state.active = True
         state.walking = False
         state.velocity = Velocity()
         self._ramp_start_s = None
+        self._next_tick_s = None  # tick at the next state (a reset may just have moved sim time back)
         if fsm_id == FSM_SQUAT_STAND and standing:
             self._start_ramp(SQUAT_Q, then_walk=False)
         elif fsm_id == FSM_SIT:
@@ -187,14 +198,16 @@ class LocoController:
             raise ValueError(f"velocity and duration must be finite, got {values}")
         if duration_s < 0:
             raise ValueError(f"duration must not be negative, got {duration_s}")
+        self._heading_ref = None  # a new command: hold the heading the robot has when it starts
         self.state.velocity = Velocity(
             float(np.clip(vx, -MAX_VX, MAX_VX)), float(np.clip(vy, -MAX_VY, MAX_VY)),
             float(np.clip(wz, -MAX_WZ, MAX_WZ)), now_s + min(duration_s, MAX_DURATION_S))
 
     def release(self) -> None:
-        """Stop sending (the motion switcher's ReleaseMode): a low-level program takes over."""
+        """Stop sending (the motion switcher's ReleaseMode, a sim reset): passive, as at start."""
         self.state = LocoState()
         self._ramp_start_s = None
+        self._next_tick_s = None
 
     # --- arm_sdk -------------------------------------------------------------------------
 
@@ -212,8 +225,8 @@ class LocoController:
             return np.zeros(3)
         return np.array([v.vx, v.vy, v.wz])
 
-    def tick(self, now_s: float, q: np.ndarray, dq: np.ndarray, quat_wxyz: np.ndarray,
-             gyro: np.ndarray, force: bool = False) -> Targets | None:
+    def tick(self, now_s: float, q: Sequence[float], dq: Sequence[float], quat_wxyz: Sequence[float],
+             gyro: Sequence[float], force: bool = False) -> Targets | None:
         """Targets for the instant `now_s` of the sim, or None: while passive, and between ticks.
 
         The controller ticks once per CONTROL_DT_S of sim time (the policy's 50 Hz; one tick per state
@@ -222,17 +235,26 @@ class LocoController:
         state = self.state
         if not state.active:
             return None
-        if self._next_tick_s is not None and now_s < self._next_tick_s - 2 * CONTROL_DT_S:
-            # Sim time went back (a reset, a restarted sim): start the clocks over from this instant;
-            # the FSM state stays, a ramp restarts from the present pose, a velocity command lapses.
+        went_back = self._last_now_s is not None and now_s < self._last_now_s - CONTROL_DT_S
+        self._last_now_s = now_s
+        if went_back:
+            # Sim time went back: a reset (or a restarted sim) put the robot back into its spawn squat.
+            # The current mode starts over from there: a ramp from the present pose, walking by standing
+            # up first (the policy on a robot just dropped into a squat would throw it over); a velocity
+            # command lapses. Requests that raced the reset land in the new episode either way.
             self._next_tick_s = None
             self._ramp_start_s = None
             state.velocity = Velocity()
+            if state.walking:
+                state.walking = False
+                self._start_ramp(STAND_Q, then_walk=True)
         due = self._next_tick_s is None or now_s >= self._next_tick_s - 1e-9
         if not (due or force):
             return None
         base = now_s if self._next_tick_s is None or not due else self._next_tick_s
         self._next_tick_s = max(base + CONTROL_DT_S, now_s + 1e-6)
+        q, dq = np.asarray(q, float), np.asarray(dq, float)
+        quat_wxyz, gyro = np.asarray(quat_wxyz, float), np.asarray(gyro, float)
         if state.fsm_id == FSM_ZERO_TORQUE:
             zeros = np.zeros(NUM_JOINTS)
             targets = Targets.hold(q, zeros, zeros)
@@ -276,8 +298,8 @@ class LocoController:
         self._leg_targets = DEFAULT_LEG_Q.copy()
 
     def _walk(self, now_s: float, q, dq, quat_wxyz, gyro) -> Targets:  # noqa: ANN001
-        obs = observation(gyro, quat_wxyz, self.command_now(now_s), q[:NUM_ACTIONS], dq[:NUM_ACTIONS],
-                          self._action, now_s)
+        obs = observation(gyro, quat_wxyz, self._held_heading(self.command_now(now_s), quat_wxyz),
+                          q[:NUM_ACTIONS], dq[:NUM_ACTIONS], self._action, now_s)
         self._action = self.policy.act(obs)
         self._leg_targets = self.policy.leg_targets(self._action)
         self.policy_steps += 1
@@ -285,6 +307,20 @@ class LocoController:
         kd = np.concatenate([LEG_KD, np.full(NUM_JOINTS - NUM_ACTIONS, UPPER_KD)])
         pose = np.concatenate([self._leg_targets, np.zeros(NUM_JOINTS - NUM_ACTIONS)])
         return Targets.hold(pose, kp, kd)
+
+    def _held_heading(self, command: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
+        """The command with a yaw rate that holds the heading while walking straight (HEADING_KP)."""
+        if command[2] != 0.0 or not (command[0] or command[1]):
+            self._heading_ref = None
+            return command
+        w, x, y, z = quat_wxyz
+        yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+        if self._heading_ref is None:
+            self._heading_ref = yaw
+        error = (self._heading_ref - yaw + math.pi) % (2 * math.pi) - math.pi
+        held = command.copy()
+        held[2] = float(np.clip(HEADING_KP * error, -HEADING_MAX_WZ, HEADING_MAX_WZ))
+        return held
 
     def _blend_arms(self, targets: Targets) -> Targets:
         arm = self.arm_sdk

@@ -103,7 +103,8 @@ class UnitreeAdapter:
         self._status = TypedPublisher.of(session, keys, topics.UNITREE_STATUS)
         # The sport service, arm_sdk and SportModeState_ (highlevel.py): its controller's commands go
         # out on the same cmd/motors publisher as forwarded LowCmd_.
-        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._motors.put, self._cap_bytes)
+        self._motors_lock = threading.Lock()
+        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._put_motors, self._cap_bytes)
         self.highlevel.adopt(robot.joint_names, self._cap_bytes)
         self._subscribers = [
             session.declare_subscriber(keys.joints, self._on_joints),
@@ -194,7 +195,13 @@ class UnitreeAdapter:
             self._ab_logged = True
             logger.warning("LowCmd_ with mode_pr 1 (A/B ankles): zensim simulates pitch/roll ankles and "
                            "applies the ankle targets as pitch/roll")
-        self._motors.put(command.command)
+        self._put_motors(command.command)
+
+    def _put_motors(self, command) -> None:  # noqa: ANN001
+        """cmd/motors from the DDS thread (LowCmd_) or a state callback (the locomotion controller):
+        one zenoh publisher, used by one thread at a time."""
+        with self._motors_lock:
+            self._motors.put(command)
 
     def handle_requests(self) -> None:
         """Answer every waiting motion-switcher request."""
