@@ -146,23 +146,31 @@ def lockstep_stack(tmp_path_factory, request):
     yield from _stack(tmp_path_factory, request, "lockstep")
 
 
-def fresh_start(stack: Stack) -> None:
+def fresh_start(stack: Stack) -> str:
     """The robot as after boot, whatever ran before: the controller released (the motion switcher's
     ReleaseMode, as a low-level program does it), the sim reset to its spawn squat."""
     if stack.switcher is None:
         stack.switcher = SdkClient(stack.domain)
-    assert stack.switcher.call(1003) == (0, "")
+    # What Unitree's low-level examples do first: CheckMode, ReleaseMode while a mode is active.
+    calls = stack.switcher.check_and_release_mode()
+    assert json.loads(stack.switcher.call(1001)[1])["name"] == ""
     wait_for(lambda: not stack.unitree.value.loco_active, 10, "the controller released")
     assert ctl(stack.session, stack.keys.ctl("reset"))["ok"]
     stack.odom.wait(lambda m: m.sim_time_s < 1.0, 10, "the state after the reset")
+    return json.loads(calls[0][1])["name"]
 
 
-def stand_up(stack: Stack, loco: Loco) -> None:
-    """From the sim's spawn squat: squat-to-stand (FSM 706), which ends balancing on the policy."""
-    fresh_start(stack)
+def stand_up(stack: Stack, loco: Loco) -> str:
+    """From the sim's spawn squat: squat-to-stand (FSM 706), which ends balancing on the policy.
+
+    Returns:
+        The mode the motion switcher named before the release ("sport" while the controller ran).
+    """
+    mode = fresh_start(stack)
     assert loco.call("SetFsmId", 706) == 0
     stack.run_for(3.0)
     assert stack.odom.value.pos[2] > 0.74, stack.odom.value  # the policy's stance (the squat: 0.725 m)
+    return mode
 
 
 def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
@@ -170,6 +178,7 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
     loco = Loco(stack.domain, stack.tmp / "loco.log")
     try:
         fresh_start(stack)
+        assert json.loads(stack.switcher.call(1001)[1]) == {"form": "0", "name": ""}
         assert loco.call("GetFsmId") == [0, 0]  # passive until asked (under lockstep: no time passes)
         first_status = len(stack.status.history)
         stand_up(stack, loco)
@@ -211,8 +220,8 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         assert loco.call("SetFsmId", 12345) == 3204  # not an FSM id: parameter error
         assert loco.call("SetFsmId", 706) == 0 and loco.call("GetFsmId") == [0, 706]  # the FSM toggles to squat
         stack.run_for(2.0)
-        # Damp lets it fold.
-        stand_up(stack, loco)
+        # Damp lets it fold. (First the motion switcher names the running controller, and releases it.)
+        assert stand_up(stack, loco) == "sport"
         upright = stack.odom.value.pos[2]
         loco.call("Damp")
         folded = stack.run_for(3.0)

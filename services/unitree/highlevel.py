@@ -224,6 +224,11 @@ class HighLevel:
         if error is not None:
             self._log.warning("LowCmd_ on rt/arm_sdk not applied: %s", error)
 
+    def active(self) -> bool:
+        """Whether the locomotion controller drives the robot (the motion switcher's CheckMode)."""
+        with self._lock:
+            return self.controller.state.active
+
     def release(self) -> None:
         """The motion switcher's ReleaseMode: the controller stops sending."""
         with self._lock:

@@ -216,7 +216,7 @@ class UnitreeAdapter:
             if request is None:
                 return
             identity = request.header.identity
-            code, data = switcher.answer(identity.api_id)
+            code, data = switcher.answer(identity.api_id, self.highlevel is not None and self.highlevel.active())
             if identity.api_id == switcher.API_ID_RELEASE_MODE and self.highlevel is not None:
                 self.highlevel.release()  # a low-level program takes the robot from the sport service
             with self._lock:
