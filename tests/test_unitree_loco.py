@@ -386,3 +386,57 @@ def test_lockstep_walk_is_recorded_and_resimulates_to_zero(start_service, zsessi
     assert result.returncode == 0, result.stderr
     assert "lockstep recording" in result.stdout, result.stdout
     assert "joint position 0 rad, base position 0 m, base orientation 0 rad" in result.stdout, result.stdout
+
+
+def test_bad_sport_requests_and_arm_sdk_samples_are_refused_counted_and_survived(lockstep_stack):
+    """Bad parameters get 3204 and change nothing; bad rt/arm_sdk samples are counted and never move the arms."""
+    from cyclonedds._clayer import ddspy_write
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.topic import Topic
+
+    from unitree_sdk import low_cmd_crc, new_low_cmd
+    from zensim.unitree.idl import LowCmd_
+
+    stack = lockstep_stack
+    loco = Loco(stack.domain, stack.tmp / "loco-bad.log")
+    try:
+        stand_up(stack, loco)
+        assert loco.call("SetFsmId", "x") == 3204
+        assert loco.call("SetVelocity", "a", 0, 0, 1.0) == 3204
+        assert loco.call("SetVelocity", 0.3, 0, 0, -1.0) == 3204
+        assert loco.call("SetBalanceMode", 7) == 3204
+        assert loco.call("GetFsmId") == [0, 706]  # nothing changed
+        before = stack.unitree.wait(what="a status")
+        participant = stack.switcher.participant
+        writer = DataWriter(participant, Topic(participant, "rt/arm_sdk", LowCmd_))
+        elbow_up = new_low_cmd()
+        elbow_up.motor_cmd[29].q = 1.0  # full weight
+        elbow_up.motor_cmd[18].q, elbow_up.motor_cmd[18].kp, elbow_up.motor_cmd[18].kd = 1.2, 60.0, 1.5
+        nan = new_low_cmd()
+        nan.motor_cmd[29].q, nan.motor_cmd[18].q = 1.0, float("nan")
+        negative = new_low_cmd()
+        negative.motor_cmd[29].q, negative.motor_cmd[18].kp = 1.0, -5.0
+        good = new_low_cmd().serialize()
+        elbow_up.crc = 0x12345678  # a wrong CRC: ignored, as the robot does
+        for cmd in (nan, negative):
+            cmd.crc = low_cmd_crc(cmd)
+
+        def counted() -> bool:  # a new writer's first samples may go before discovery matched it: resend
+            for cmd in (elbow_up, nan, negative):
+                writer.write(cmd)
+            ddspy_write(writer._ref, good[:100])  # not a LowCmd_ at all
+            status = stack.unitree.value
+            return status.arm_sdk_rejected - before.arm_sdk_rejected >= 40
+
+        wait_for(counted, 30, "the bad arm_sdk samples counted", 0.01)
+        after = stack.unitree.value
+        assert after.arm_sdk_received - after.arm_sdk_rejected == before.arm_sdk_received - before.arm_sdk_rejected
+        stack.run_for(1.0)
+        assert abs(stack.odom.value.pos[2] - 0.76) < 0.05  # still standing on the policy
+        joints = Latest(stack.session, stack.keys.joints, JointState)
+        assert abs(joints.wait(what="a state").q[18]) < 0.1  # no bad sample moved the elbow
+        assert stack.up.poll() is None
+        assert stack.unitree.value.policy_steps > before.policy_steps
+        assert "not applied" in stack.log_path.read_text()  # logged (rate-limited), not silent
+    finally:
+        loco.close()
