@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -385,6 +386,9 @@ def test_lockstep_walk_is_recorded_and_resimulates_to_zero(start_service, zsessi
                             timeout=180)
     assert result.returncode == 0, result.stderr
     assert "lockstep recording" in result.stdout, result.stdout
+    # Every 20 ms of the ~6 s walk was one of the controller's commands, recorded and re-applied.
+    commands = int(re.search(r"(\d+) commands", result.stdout).group(1))
+    assert commands >= 250, result.stdout
     assert "joint position 0 rad, base position 0 m, base orientation 0 rad" in result.stdout, result.stdout
 
 
