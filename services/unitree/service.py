@@ -12,6 +12,9 @@ Writes:
     {robot}/cmd/motors                MotorCommand, every joint, one per accepted LowCmd_
     {robot}/state/unitree             UnitreeStatus at status_rate_hz
     {robot}/alive/unitree             liveliness token, once the robot is known
+The G1's high-level API (highlevel.py: rt/api/sport/*, rt/arm_sdk, rt/odommodestate) shares the
+participant, the DDS thread and the cmd/motors publisher; its locomotion controller ticks on the
+state pairs that make LowState_.
 
 A DDS thread waits on both DDS readers; zenoh's callback threads build LowState_. Nothing queues:
 a LowCmd_ is forwarded as soon as it is read, a LowState_ written as soon as its pair is complete.
