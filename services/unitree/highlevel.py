@@ -6,7 +6,7 @@ targets go out on cmd/motors like any other command (so the sim, the recorder an
 requests and arm_sdk commands come from the adapter's DDS thread. One lock covers the controller.
 
 SportModeState_ (rt/odommodestate, 50 Hz of sim time; rt/lf/odommodestate, 10 Hz) is the sim's ground
-truth from state/odom and state/imu: position (world, m), body height, velocity (world, m/s), yaw speed
+truth from state/odom (the newest, pulled at that rate) and state/imu: position (world, m), body height, velocity (world, m/s), yaw speed
 (body, rad/s), the IMU, `mode` 0 passive/zero torque/damp, 1 standing (ramps, balancing in place), 3
 walking (a velocity in force), `stamp` the sim time.
 """
@@ -75,7 +75,9 @@ class HighLevel:
         self._next_odom_s: float | None = None
         self._odom_count = 0
         self._log = RateLimitedLog(logger, 1.0)
-        self._subscriber = session.declare_subscriber(keys.odom, self._on_odom)
+        # The newest odometry only, pulled at SportModeState_'s rate from the state ticks: a Python
+        # callback per 500 Hz sample would take the GIL from the DDS thread 500 times a second.
+        self._odom = session.declare_subscriber(keys.odom, zenoh.handlers.RingChannel(1))
 
     def adopt(self, joint_names: tuple[str, ...], cap_bytes: int) -> None:
         """A (new) robot: the controller runs only on the G1, and starts passive."""
@@ -92,10 +94,16 @@ class HighLevel:
     # --- the sim's states (zenoh threads) --------------------------------------------
 
     def on_state(self, joints: JointState, imu: Imu) -> None:
-        """One instant of the sim (a completed LowState_ pair): tick the controller."""
+        """One instant of the sim (a completed LowState_ pair): tick the controller, publish SportModeState_."""
         with self._lock:
             self._latest = (joints, imu)
             self._tick(force=False)
+            message = self._odom_due(joints.sim_time_s, imu)
+        if message is not None:
+            try:
+                self._dds.write_odom(*message)
+            except Exception as exc:  # the binding's write errors are assorted
+                self._log.warning("cannot write SportModeState_: %s", bounded(str(exc)))
 
     def _tick(self, force: bool) -> None:
         if not self.enabled:
@@ -121,35 +129,29 @@ class HighLevel:
         except zenoh.ZError as exc:  # a state callback still running while the adapter closes
             self._log.warning("cannot put the controller's command: %s", exc)
 
-    def _on_odom(self, sample: zenoh.Sample) -> None:
+    def _odom_due(self, now_s: float, imu: Imu) -> tuple[SportModeState_, bool] | None:
+        """SportModeState_ from the newest odometry, every ODOM_PERIOD_S of sim time (None between)."""
+        if self._next_odom_s is not None and self._next_odom_s - 2 * ODOM_PERIOD_S <= now_s < self._next_odom_s - 1e-9:
+            return None  # (sim time going back, a reset, starts the schedule over)
+        sample = self._odom.try_recv()
+        if sample is None:
+            return None
         try:
             odom = decode_input(sample, self._odom_codec, self._cap_bytes)
         except DecodeError as exc:
             self._log.warning("ignoring bad Odometry: %s", exc)
-            return
-        with self._lock:
-            if self._next_odom_s is not None and odom.sim_time_s < self._next_odom_s - 1e-9 \
-                    and odom.sim_time_s >= self._next_odom_s - 2 * ODOM_PERIOD_S:
-                return
-            self._next_odom_s = odom.sim_time_s + ODOM_PERIOD_S
-            self._odom_count += 1
-            imu = None if self._latest is None else self._latest[1]
-            message = self._sport_mode_state(odom, imu)
-            low_frequency = self._odom_count % ODOM_LF_EVERY == 0
-        try:
-            self._dds.write_odom(message, low_frequency)
-        except Exception as exc:  # the binding's write errors are assorted
-            self._log.warning("cannot write SportModeState_: %s", bounded(str(exc)))
+            return None
+        self._next_odom_s = now_s + ODOM_PERIOD_S
+        self._odom_count += 1
+        return self._sport_mode_state(odom, imu), self._odom_count % ODOM_LF_EVERY == 0
 
-    def _sport_mode_state(self, odom: Odometry, imu: Imu | None) -> SportModeState_:
+    def _sport_mode_state(self, odom: Odometry, imu: Imu) -> SportModeState_:
         state = self.controller.state
         moving = state.walking and any(self.controller.command_now(odom.sim_time_s))
         mode = 0 if not state.active or state.fsm_id in (0, 1) else (3 if moving else 1)
         seconds = int(odom.sim_time_s)
-        imu_state = GoIMUState_()
-        if imu is not None:
-            imu_state = GoIMUState_(quaternion=list(imu.quat_wxyz), gyroscope=list(imu.gyro),
-                                    accelerometer=list(imu.accel), rpy=list(rpy_from_wxyz(*imu.quat_wxyz)))
+        imu_state = GoIMUState_(quaternion=list(imu.quat_wxyz), gyroscope=list(imu.gyro),
+                                accelerometer=list(imu.accel), rpy=list(rpy_from_wxyz(*imu.quat_wxyz)))
         return SportModeState_(
             stamp=TimeSpec_(sec=seconds, nanosec=int((odom.sim_time_s - seconds) * 1e9)),
             imu_state=imu_state, mode=mode, gait_type=1 if moving else 0,
@@ -163,8 +165,9 @@ class HighLevel:
         """Answer waiting sport requests and take arm_sdk commands."""
         if self._dds.has_request():
             self._handle_requests()
-        for data in self._dds.take_arm_sdk():
-            self._handle_arm_sdk(data)
+        if self._dds.has_arm_sdk():
+            for data in self._dds.take_arm_sdk():
+                self._handle_arm_sdk(data)
 
     def _handle_requests(self) -> None:
         while True:
@@ -247,7 +250,7 @@ class HighLevel:
                     "policy_steps": self.controller.policy_steps}
 
     def close(self) -> None:
-        self._subscriber.undeclare()
+        self._odom.undeclare()
 
 
 def _motor_command(targets: Targets) -> MotorCommand:

@@ -46,6 +46,9 @@ class HighLevelDds:
     def has_request(self) -> bool:
         return bool(self.request_ready.triggered)
 
+    def has_arm_sdk(self) -> bool:
+        return bool(self.arm_sdk_ready.triggered)
+
     def take_request(self) -> Request_ | None:
         """The next sport request (decoded by the binding).
 
