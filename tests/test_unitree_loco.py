@@ -227,7 +227,7 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         loco.call("Damp")
         folded = stack.run_for(3.0)
         assert folded.pos[2] < upright - 0.15, (upright, folded.pos)
-        assert stack.unitree.value.loco_fsm_id == 1 and stack.unitree.value.policy_steps > 500
+        stack.unitree.wait(lambda u: u.loco_fsm_id == 1 and u.policy_steps > 500, 10, "the status to say damp")
     finally:
         loco.close()
 
@@ -335,14 +335,16 @@ def test_sdk_loco_client_example_through_its_stdin(stack):
         first_status = len(stack.status.history)
         choose("", 1.0)  # "Press Enter to continue..."
         stood = choose("1", 4.0)  # Damp, 0.5 s, Squat2StandUp
-        assert stood.pos[2] > 0.7 and stack.unitree.value.loco_fsm_id == 706, stood
+        assert stood.pos[2] > 0.7, stood
+        stack.unitree.wait(lambda u: u.loco_fsm_id == 706, 10, "the status to say squat-to-stand")
         moved = choose("3", 2.5)  # Move(0.3, 0, 0) for 1 s
         assert moved.pos[0] - stood.pos[0] > 0.1, (stood.pos, moved.pos)
         turned = choose("5", 2.5)  # Move(0, 0, 0.3) for 1 s
         assert abs(yaw_of(turned.quat_wxyz) - yaw_of(moved.quat_wxyz)) > 0.1
         assert not stack.fell_since(first_status)
         damped = choose("0", 2.5)  # Damp
-        assert stack.unitree.value.loco_fsm_id == 1 and damped.pos[2] < turned.pos[2] - 0.05
+        assert damped.pos[2] < turned.pos[2] - 0.05, (turned.pos, damped.pos)
+        stack.unitree.wait(lambda u: u.loco_fsm_id == 1, 10, "the status to say damp")
     finally:
         proc.stdin.close()
         proc.wait(15)
@@ -440,7 +442,7 @@ def test_bad_sport_requests_and_arm_sdk_samples_are_refused_counted_and_survived
         joints = Latest(stack.session, stack.keys.joints, JointState)
         assert abs(joints.wait(what="a state").q[18]) < 0.1  # no bad sample moved the elbow
         assert stack.up.poll() is None
-        assert stack.unitree.value.policy_steps > before.policy_steps
+        stack.unitree.wait(lambda u: u.policy_steps > before.policy_steps, 10, "the policy still stepping")
         assert "not applied" in stack.log_path.read_text()  # logged (rate-limited), not silent
     finally:
         loco.close()

@@ -114,3 +114,24 @@ def test_sport_answers_codes_as_the_robot():
     assert list(controller.command_now(0.0)) == [1.0, -0.5, 1.0]  # clipped to the policy's range
     for unsupported in (7004, 7005, 7006, 7103, 7104, 7106, 9999):
         assert sport.answer(unsupported, json.dumps({"data": 0}), controller, 0.0) == (3203, "")
+
+
+def test_sport_mode_state_bytes_are_what_the_binding_serializes():
+    from zensim.unitree.highlevel_dds import encode_sport_mode_state
+    from zensim.unitree.idl import GoIMUState_, PathPoint_, SportModeState_, TimeSpec_
+
+    rng = np.random.default_rng(1)
+
+    def floats(n):
+        return [float(v) for v in rng.normal(size=n).astype(np.float32)]
+
+    state = SportModeState_(
+        stamp=TimeSpec_(sec=12, nanosec=345_000_000), error_code=7,
+        imu_state=GoIMUState_(quaternion=floats(4), gyroscope=floats(3), accelerometer=floats(3), rpy=floats(3),
+                              temperature=41),
+        mode=3, progress=0.5, gait_type=1, foot_raise_height=0.125, position=floats(3), body_height=0.75,
+        velocity=floats(3), yaw_speed=0.25, range_obstacle=floats(4), foot_force=[1, -2, 300, -400],
+        foot_position_body=floats(12), foot_speed_body=floats(12),
+        path_point=[PathPoint_(*floats(7)) for _ in range(10)])
+    assert encode_sport_mode_state(state) == state.serialize()
+    assert SportModeState_.deserialize(encode_sport_mode_state(state)) == state
