@@ -135,3 +135,35 @@ def test_sport_mode_state_bytes_are_what_the_binding_serializes():
         path_point=[PathPoint_(*floats(7)) for _ in range(10)])
     assert encode_sport_mode_state(state) == state.serialize()
     assert SportModeState_.deserialize(encode_sport_mode_state(state)) == state
+
+
+def _torchscript_zip(path, data_pkl: bytes, storages: dict[str, bytes]) -> None:
+    import zipfile
+
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("policy/data.pkl", data_pkl)
+        for key, raw in storages.items():
+            archive.writestr(f"policy/data/{key}", raw)
+
+
+def test_policy_converter_rebuilds_tensors_and_refuses_any_other_global(tmp_path):
+    import pickle
+
+    from zensim.robots.unitree_g1.policy.convert import load_torchscript
+
+    # A tensor as TorchScript pickles it: _rebuild_tensor_v2((storage pid), offset, size, stride, ...),
+    # here a 2x3 float32 matrix stored transposed (stride 1, 2) to check strides are honoured.
+    raw = np.arange(6, dtype="<f4").tobytes()
+    data = (b"\x80\x02c__torch__.legged_gym.utils.helpers\nPolicyExporterLSTM\n)\x81}X\x01\x00\x00\x00w"
+            b"ctorch._utils\n_rebuild_tensor_v2\n((X\x07\x00\x00\x00storagectorch\nFloatStorage\n"
+            b"X\x01\x00\x00\x000X\x03\x00\x00\x00cpuK\x06tQK\x00K\x02K\x03\x86K\x01K\x02\x86\x89"
+            b"ccollections\nOrderedDict\n)RtRsb.")
+    _torchscript_zip(tmp_path / "ok.pt", data, {"0": raw})
+    module = load_torchscript(tmp_path / "ok.pt")
+    assert module.class_name == "__torch__.legged_gym.utils.helpers.PolicyExporterLSTM"
+    assert np.array_equal(module.attrs["w"], np.arange(6, dtype=np.float32).reshape(3, 2).T)
+    # Anything else a pickle could call is refused before it runs.
+    evil = b"\x80\x02cos\nsystem\nX\x04\x00\x00\x00trueq\x00\x85R."
+    _torchscript_zip(tmp_path / "evil.pt", evil, {})
+    with pytest.raises(pickle.UnpicklingError, match="refusing to load os.system"):
+        load_torchscript(tmp_path / "evil.pt")
