@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from support import Latest, Service, ctl, free_port, plain_client, wait_for
+from support import Latest, ctl, free_port, plain_client, wait_for
 from unitree_sdk import SdkClient, unused_domain_id
 from zensim.schemas import Codec, JointState, Keys, MotorCommand, Odometry, SimStatus, UnitreeStatus
 

@@ -330,7 +330,7 @@ class LocoController:
         for name in ("q", "dq", "kp", "kd", "tau"):
             mine = getattr(targets, name)
             blended = w * getattr(arm, name) + (1.0 - w) * mine[s]
-            if name in ("kp", "kd"):  # the waist keeps the controller's stiffness (WAIST_KEEPS_GAINS)
+            if name in ("kp", "kd"):  # the waist keeps the controller's stiffness (module docstring)
                 blended[:NUM_WAIST] = mine[ARM_SDK_FIRST:ARM_SDK_FIRST + NUM_WAIST]
             mine[s] = blended
         return targets
