@@ -127,6 +127,11 @@ class Stack:
         end = self.sim_time() + seconds
         return self.odom.wait(lambda m: m.sim_time_s >= end, 10 + 6 * seconds, f"{seconds} s of sim time")
 
+    def run_until(self, sim_time_s: float) -> Odometry:
+        """Wait for the first state at or after `sim_time_s`."""
+        wall_s = 10 + 6 * max(0.0, sim_time_s - self.sim_time())
+        return self.odom.wait(lambda m: m.sim_time_s >= sim_time_s, wall_s, f"sim time {sim_time_s:.2f} s")
+
     def fell_since(self, index: int) -> bool:
         return any(s.fallen for s in self.status.history[index:])
 
@@ -198,11 +203,13 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         first_status = len(stack.status.history)
         stand_up(stack, loco)
         assert loco.call("GetFsmId") == [0, 706]
+        # Windows of sim time counted from before each call: under lockstep the sim runs on (several
+        # times faster than the wall clock) while a request travels, so the robot walks at most 10 s.
         start = stack.odom.value
         loco.call("Move", 0.3, 0, 0, True)  # continous_move: duration 864000 s
         stack.run_for(0.5)
         assert loco.call("odommodestate")["mode"] == 3  # walking
-        walked = stack.run_for(10.0)
+        walked = stack.run_until(start.sim_time_s + 10.0)
         loco.call("StopMove")
         forward, lateral = walked.pos[0] - start.pos[0], walked.pos[1] - start.pos[1]
         walk_status = stack.status.history[first_status:]
@@ -220,13 +227,14 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         drift = math.dist(settled.pos[:2], later.pos[:2])
         assert drift < 0.25, (settled.pos, later.pos)
         assert loco.call("odommodestate")["mode"] == 1  # standing
-        # Turns in place.
+        # Turns in place: 0.3 rad/s for at most 5 s.
+        before_turn = stack.odom.value
         loco.call("Move", 0, 0, 0.3, True)
-        turned = stack.run_for(5.0)
+        turned = stack.run_until(before_turn.sim_time_s + 5.0)
         loco.call("StopMove")
-        turn = (yaw_of(turned.quat_wxyz) - yaw_of(later.quat_wxyz) + math.pi) % (2 * math.pi) - math.pi
-        assert 0.8 < turn < 2.0, turn
-        assert math.dist(turned.pos[:2], later.pos[:2]) < 0.5, (later.pos, turned.pos)
+        turn = (yaw_of(turned.quat_wxyz) - yaw_of(before_turn.quat_wxyz) + math.pi) % (2 * math.pi) - math.pi
+        assert 0.8 < turn < 1.8, turn
+        assert math.dist(turned.pos[:2], before_turn.pos[:2]) < 0.5, (before_turn.pos, turned.pos)
         assert not stack.fell_since(first_status), "the robot fell while walking"
         print(f"\nover the wire: walked {forward:.2f} m forward, {lateral:+.2f} m lateral in 10 s; "
               f"{drift:.3f} m in 3 s after StopMove; turned {turn:+.2f} rad in 5 s")
