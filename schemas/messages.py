@@ -493,6 +493,20 @@ class UnitreeStatus(Message, frozen=True, tag="unitree_status", kw_only=True):
     """Wall time since the newest forwarded LowCmd_, s; null before the first one."""
     last_error: str | None = None
     """Why the most recent LowCmd_ was rejected or ignored, if one was."""
+    sport_requests: int = 0
+    """Requests answered on rt/api/sport/request (LocoClient), good or bad."""
+    arm_sdk_received: int = 0
+    """LowCmd_ samples read from rt/arm_sdk."""
+    arm_sdk_rejected: int = 0
+    """rt/arm_sdk samples not applied: undecodable, bad crc, non-finite value, negative gain."""
+    loco_commands: int = 0
+    """MotorCommands the locomotion controller put on cmd/motors."""
+    loco_active: bool = False
+    """True while the locomotion controller drives the robot (from the first FSM request to a ReleaseMode)."""
+    loco_fsm_id: int = 0
+    """The controller's FSM id (LocoClient: 0 zero torque, 1 damp, 3 sit, 500 start, 702, 706)."""
+    policy_steps: int = 0
+    """Steps of the walking policy run since start."""
 
 
 class Ros1Status(Message, tag="ros1_status", frozen=True, kw_only=True):

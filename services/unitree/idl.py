@@ -160,3 +160,60 @@ class Response_(IdlStruct, typename="unitree_api.msg.dds_.Response_"):
     header: ResponseHeader_ = field(default_factory=ResponseHeader_)
     data: str = ""
     binary: types.sequence[types.uint8] = field(default_factory=list)
+
+
+# --- unitree_go: the high-level state the G1 publishes on rt/odommodestate ---------------
+
+
+@dataclass
+@annotate.final
+@annotate.autoid("sequential")
+class TimeSpec_(IdlStruct, typename="unitree_go.msg.dds_.TimeSpec_"):
+    sec: types.int32 = 0
+    nanosec: types.uint32 = 0
+
+
+@dataclass
+@annotate.final
+@annotate.autoid("sequential")
+class GoIMUState_(IdlStruct, typename="unitree_go.msg.dds_.IMUState_"):
+    quaternion: types.array[types.float32, 4] = _zeros(4)
+    gyroscope: types.array[types.float32, 3] = _zeros(3)
+    accelerometer: types.array[types.float32, 3] = _zeros(3)
+    rpy: types.array[types.float32, 3] = _zeros(3)
+    temperature: types.uint8 = 0
+
+
+@dataclass
+@annotate.final
+@annotate.autoid("sequential")
+class PathPoint_(IdlStruct, typename="unitree_go.msg.dds_.PathPoint_"):
+    t_from_start: types.float32 = 0.0
+    x: types.float32 = 0.0
+    y: types.float32 = 0.0
+    yaw: types.float32 = 0.0
+    vx: types.float32 = 0.0
+    vy: types.float32 = 0.0
+    vyaw: types.float32 = 0.0
+
+
+@dataclass
+@annotate.final
+@annotate.autoid("sequential")
+class SportModeState_(IdlStruct, typename="unitree_go.msg.dds_.SportModeState_"):
+    stamp: TimeSpec_ = field(default_factory=TimeSpec_)
+    error_code: types.uint32 = 0
+    imu_state: GoIMUState_ = field(default_factory=GoIMUState_)
+    mode: types.uint8 = 0
+    progress: types.float32 = 0.0
+    gait_type: types.uint8 = 0
+    foot_raise_height: types.float32 = 0.0
+    position: types.array[types.float32, 3] = _zeros(3)
+    body_height: types.float32 = 0.0
+    velocity: types.array[types.float32, 3] = _zeros(3)
+    yaw_speed: types.float32 = 0.0
+    range_obstacle: types.array[types.float32, 4] = _zeros(4)
+    foot_force: types.array[types.int16, 4] = _zeros(4)
+    foot_position_body: types.array[types.float32, 12] = _zeros(12)
+    foot_speed_body: types.array[types.float32, 12] = _zeros(12)
+    path_point: types.array[PathPoint_, 10] = field(default_factory=lambda: [PathPoint_() for _ in range(10)])

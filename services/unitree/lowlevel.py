@@ -131,6 +131,12 @@ class LowStateBuilder:
         self._imu = message
         return self._complete()
 
+    def pair(self) -> tuple[JointState, Imu] | None:
+        """The JointState and Imu of the newest completed LowState_ (None before the first)."""
+        if self._joints is None or self._imu is None or self._joints.seq != self._done_seq:
+            return None
+        return self._joints, self._imu
+
     def _complete(self) -> bytes | None:
         joints, imu = self._joints, self._imu
         if joints is None or imu is None or joints.seq != imu.seq or joints.seq == self._done_seq:

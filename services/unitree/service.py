@@ -12,6 +12,9 @@ Writes:
     {robot}/cmd/motors                MotorCommand, every joint, one per accepted LowCmd_
     {robot}/state/unitree             UnitreeStatus at status_rate_hz
     {robot}/alive/unitree             liveliness token, once the robot is known
+The G1's high-level API (highlevel.py: rt/api/sport/*, rt/arm_sdk, rt/odommodestate) shares the
+participant, the DDS thread and the cmd/motors publisher; its locomotion controller ticks on the
+state pairs that make LowState_.
 
 A DDS thread waits on both DDS readers; one zenoh callback thread (one subscriber on `state/*`)
 builds LowState_. Nothing queues: a LowCmd_ is forwarded as soon as it is read, a LowState_ written
@@ -48,6 +51,8 @@ from zensim.schemas.bounds import vector_cap_bytes
 from . import switcher
 from .codec import NUM_MOTORS, CodecError, decode_low_cmd
 from .dds import UnitreeDds
+from .highlevel import HighLevel
+from .highlevel_dds import HighLevelDds
 from .idl import RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_
 from .lowlevel import LowCmdError, LowStateBuilder, motor_command
 from .settings import UnitreeSettings
@@ -107,6 +112,7 @@ class UnitreeAdapter:
         self.counters = Counters()
         self.sim_restarted = threading.Event()
         """Set when state/sim comes from another sim run: the loop learns the robot again."""
+        self.highlevel: HighLevel | None = None
         self.adopt(robot)
         self._joints_codec = Codec(JointState)
         self._imu_codec = Codec(Imu)
@@ -116,6 +122,11 @@ class UnitreeAdapter:
         self._ab_logged = False
         self._motors = TypedPublisher.of(session, keys, topics.MOTORS)
         self._status = TypedPublisher.of(session, keys, topics.UNITREE_STATUS)
+        # The sport service, arm_sdk and SportModeState_ (highlevel.py): its controller's commands go
+        # out on the same cmd/motors publisher as forwarded LowCmd_.
+        self._motors_lock = threading.Lock()
+        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._put_motors, self._cap_bytes)
+        self.highlevel.adopt(robot.joint_names, self._cap_bytes)
         # One subscriber, so one callback thread, for the sim's states: see the module docstring.
         # Other state/* keys (odom, the adapter's own status) are dropped by the key lookup.
         self._state_routes = {keys.joints: self._on_joints, keys.imu: self._on_imu,
@@ -129,6 +140,8 @@ class UnitreeAdapter:
             self._builder = LowStateBuilder(len(robot.joint_names), self._settings.mode_machine)
             self._cap_bytes = vector_cap_bytes(robot.joint_names)
             self.sim_restarted.clear()
+        if self.highlevel is not None:
+            self.highlevel.adopt(robot.joint_names, self._cap_bytes)
 
     # --- zensim -> DDS (the state callback thread) ---------------------------------
 
@@ -170,8 +183,12 @@ class UnitreeAdapter:
             with self._lock:
                 self.counters.lowstate_published += 1
                 self.counters.sim_time_s = message.sim_time_s
+                pair = self._builder.pair()
         except (DecodeError, ValueError, OSError) as exc:
             self._state_log.warning("cannot turn state/%s into LowState_: %s", which, exc)
+            return
+        if pair is not None and self.highlevel is not None:
+            self.highlevel.on_state(*pair)  # the locomotion controller ticks on the sim's states
 
     # --- DDS -> zensim (the DDS thread) --------------------------------------------
 
@@ -211,7 +228,13 @@ class UnitreeAdapter:
             self._ab_logged = True
             logger.warning("LowCmd_ with mode_pr 1 (A/B ankles): zensim simulates pitch/roll ankles and "
                            "applies the ankle targets as pitch/roll")
-        self._motors.put(command.command)
+        self._put_motors(command.command)
+
+    def _put_motors(self, command) -> None:  # noqa: ANN001
+        """cmd/motors from the DDS thread (LowCmd_) or a state callback (the locomotion controller):
+        one zenoh publisher, used by one thread at a time."""
+        with self._motors_lock:
+            self._motors.put(command)
 
     def handle_requests(self) -> None:
         """Answer every waiting motion-switcher request."""
@@ -226,7 +249,9 @@ class UnitreeAdapter:
             if request is None:
                 return
             identity = request.header.identity
-            code, data = switcher.answer(identity.api_id)
+            code, data = switcher.answer(identity.api_id, self.highlevel is not None and self.highlevel.active())
+            if identity.api_id == switcher.API_ID_RELEASE_MODE and self.highlevel is not None:
+                self.highlevel.release()  # a low-level program takes the robot from the sport service
             with self._lock:
                 self.counters.motion_switcher_requests += 1
             logger.info("motion switcher: api %d -> code %d %s", identity.api_id, code, data)
@@ -246,6 +271,8 @@ class UnitreeAdapter:
                 self.handle_lowcmd(data)
             if self._dds.has_request():
                 self.handle_requests()
+            if self.highlevel is not None:
+                self.highlevel.poll()
 
     # --- status ----------------------------------------------------------------------
 
@@ -266,12 +293,15 @@ class UnitreeAdapter:
                 motion_switcher_requests=c.motion_switcher_requests, sim_time_s=c.sim_time_s,
                 command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
                 last_error=c.last_error,
+                **(self.highlevel.status_fields() if self.highlevel is not None else {}),
             )
         self._status.put(status)
 
     def close(self) -> None:
         for subscriber in self._subscribers:
             subscriber.undeclare()
+        if self.highlevel is not None:
+            self.highlevel.close()
         self._motors.undeclare()
         self._status.undeclare()
 

@@ -1,0 +1,105 @@
+"""Answers to the G1's "sport" service (LocoClient of unitree_sdk2's `g1/loco`), without DDS.
+
+The request's `parameter` is JSON, as LocoClient writes it; answers are (status code, data):
+
+    1      API version          0, "1.0.0.0"
+    7001   GetFsmId             0, {"data": fsm id}
+    7002   GetFsmMode           0, {"data": 0 standing still, 1 walking (a velocity in force)}
+    7003   GetBalanceMode       0, {"data": balance mode}
+    7101   SetFsmId             {"data": id}: 0 zero torque, 1 damp, 3 sit, 500 start, 702, 706 (loco.py)
+    7102   SetBalanceMode       {"data": 0 or 1}: stored and reported (the policy balances either way)
+    7105   SetVelocity          {"velocity": [vx, vy, wz], "duration": s}
+    7004, 7005, 7006            3203: swing/stand height and gait phase are not simulated
+    7103, 7104, 7106            3203: swing height, stand height (Low/HighStand) and arm tasks (wave, shake hand)
+    anything else               3203 (RPC_ERR_SERVER_API_NOT_IMPL)
+A parameter that is not the JSON the call takes, or a value the controller refuses (an unknown FSM id,
+a non-finite velocity), gets 3204 (RPC_ERR_SERVER_API_PARAMETER) and changes nothing. Codes are the
+SDK's (unitree_sdk2py/rpc/internal.py).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Final
+
+from .loco import LocoController
+
+API_VERSION: Final = "1.0.0.0"
+RPC_OK: Final = 0
+RPC_ERR_SERVER_API_NOT_IMPL: Final = 3203
+RPC_ERR_SERVER_API_PARAMETER: Final = 3204
+
+API_ID_VERSION: Final = 1
+GET_FSM_ID: Final = 7001
+GET_FSM_MODE: Final = 7002
+GET_BALANCE_MODE: Final = 7003
+SET_FSM_ID: Final = 7101
+SET_BALANCE_MODE: Final = 7102
+SET_VELOCITY: Final = 7105
+
+
+class ParameterError(ValueError):
+    """A request parameter the call cannot take."""
+
+
+def _data(parameter: str) -> object:
+    try:
+        value = json.loads(parameter)
+    except (ValueError, RecursionError) as exc:
+        raise ParameterError(f"parameter is not JSON: {exc}") from None
+    if not isinstance(value, dict) or "data" not in value:
+        raise ParameterError('parameter must be {"data": ...}')
+    return value["data"]
+
+
+def _integer(value: object) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or value != int(value):
+        raise ParameterError(f"expected an integer, got {value!r:.40}")
+    return int(value)
+
+
+def _velocity(parameter: str) -> tuple[float, float, float, float]:
+    try:
+        value = json.loads(parameter)
+    except (ValueError, RecursionError) as exc:
+        raise ParameterError(f"parameter is not JSON: {exc}") from None
+    if not isinstance(value, dict):
+        raise ParameterError('parameter must be {"velocity": [vx, vy, wz], "duration": s}')
+    velocity, duration = value.get("velocity"), value.get("duration", 1.0)
+    numbers = [*velocity, duration] if isinstance(velocity, list) and len(velocity) == 3 else None
+    if numbers is None or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers):
+        raise ParameterError('parameter must be {"velocity": [vx, vy, wz], "duration": s} with numbers')
+    vx, vy, wz, seconds = (float(v) for v in numbers)
+    return vx, vy, wz, seconds
+
+
+def answer(api_id: int, parameter: str, controller: LocoController, now_s: float) -> tuple[int, str]:
+    """The (status code, data) for one request; applies it to `controller` (at sim time `now_s`)."""
+    state = controller.state
+    try:
+        if api_id == API_ID_VERSION:
+            return RPC_OK, API_VERSION
+        if api_id == GET_FSM_ID:
+            return RPC_OK, json.dumps({"data": state.fsm_id})
+        if api_id == GET_FSM_MODE:
+            moving = state.walking and any(controller.command_now(now_s))
+            return RPC_OK, json.dumps({"data": 1 if moving else 0})
+        if api_id == GET_BALANCE_MODE:
+            return RPC_OK, json.dumps({"data": state.balance_mode})
+        if api_id == SET_FSM_ID:
+            controller.set_fsm(_integer(_data(parameter)))
+            return RPC_OK, ""
+        if api_id == SET_BALANCE_MODE:
+            mode = _integer(_data(parameter))
+            if mode not in (0, 1):
+                raise ParameterError(f"balance mode is 0 or 1, got {mode}")
+            state.balance_mode = mode
+            return RPC_OK, ""
+        if api_id == SET_VELOCITY:
+            controller.set_velocity(*_velocity(parameter), now_s=now_s)
+            return RPC_OK, ""
+    except ValueError:  # ParameterError, or the controller refusing a value
+        return RPC_ERR_SERVER_API_PARAMETER, ""
+    return RPC_ERR_SERVER_API_NOT_IMPL, ""

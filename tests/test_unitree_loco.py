@@ -1,0 +1,471 @@
+"""The G1's high-level API through Unitree's own SDK (unitree_sdk2_python, unchanged) against `zensim up --unitree`:
+LocoClient (the "sport" service) walks, turns and damps the floating G1 with Unitree's walking policy; the
+SDK's arm_sdk and loco examples run as users run them; a lockstep walk re-simulates to 0 divergence.
+
+Needs ZENSIM_UNITREE_SDK2_PYTHON (set by .ci/run; scripts/test then installs the SDK into the venv).
+The walking tests share one running stack (module scope): it walks in sim time at real-time speed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from support import Latest, ctl, free_port, plain_client, wait_for
+from unitree_sdk import SdkClient, unused_domain_id
+from zensim.schemas import Codec, JointState, Keys, MotorCommand, Odometry, SimStatus, UnitreeStatus
+
+SDK = os.environ.get("ZENSIM_UNITREE_SDK2_PYTHON", "")
+try:
+    import unitree_sdk2py  # noqa: F401
+    SDK_INSTALLED = True
+except ImportError:
+    SDK_INSTALLED = False
+pytestmark = [
+    pytest.mark.skipif(not SDK, reason="ZENSIM_UNITREE_SDK2_PYTHON is unset: Unitree's unitree_sdk2_python is the "
+                                       "client of these tests (.ci/run points it at ../shared/unitree_sdk2_python)"),
+    pytest.mark.skipif(bool(SDK) and not SDK_INSTALLED,
+                       reason="unitree_sdk2py is not installed in this venv: run scripts/test with "
+                              "ZENSIM_UNITREE_SDK2_PYTHON set (it pip-installs it --no-deps)"),
+]
+HERE = Path(__file__).parent
+STACK_ENV = json.loads(os.environ.get("LOCO_STACK_ENV", "{}"))
+ARMS = list(range(15, 29))
+
+
+def yaw_of(quat_wxyz) -> float:
+    w, x, y, z = quat_wxyz
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+class Loco:
+    """tests/sdk_loco.py: Unitree's LocoClient in its own process, one call per line."""
+
+    def __init__(self, domain: int, log: Path) -> None:
+        self._log = log.open("wb")
+        self.proc = subprocess.Popen([sys.executable, str(HERE / "sdk_loco.py"), str(domain)], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=self._log, text=True)
+        self.noise: list[str] = []
+        try:
+            assert self._reply() == {"ready": True}
+        except BaseException:
+            self.proc.kill()
+            self.close()
+            raise
+
+    def _reply(self) -> dict:
+        while True:
+            line = self.proc.stdout.readline()
+            assert line, "sdk_loco.py exited"
+            if line.startswith("{"):
+                return json.loads(line)
+            self.noise.append(line)  # the SDK prints its own diagnostics on stdout
+
+    def call(self, *call):  # noqa: ANN201
+        self.proc.stdin.write(json.dumps(call) + "\n")
+        self.proc.stdin.flush()
+        return self._reply()["result"]
+
+    def close(self) -> None:
+        self.proc.stdin.close()
+        self.proc.stdout.close()
+        try:
+            self.proc.wait(10)
+        finally:
+            self._log.close()
+        if self.noise:
+            print(f"\nthe SDK said: {''.join(self.noise)}")
+
+
+class Stack:
+    """`zensim up --unitree` (floating G1, 500 Hz states, no viewer) and a plain zenoh client watching it.
+
+    `clock` "lockstep" makes the controller the clock: sim time then runs at the pace of the adapter's
+    loop, whatever else loads the machine (a realtime sim on a machine with a load average of 15 on 2
+    cores stalls for up to 90 ms, and a 50 Hz walking policy whose commands land that late stumbles).
+    """
+
+    def __init__(self, tmp: Path, clock: str = "realtime") -> None:
+        self.robot_id = "t" + os.urandom(5).hex()
+        self.keys = Keys(self.robot_id)
+        self.domain = unused_domain_id()
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.tmp = tmp
+        self.switcher: SdkClient | None = None
+        env = dict(os.environ, ZENSIM_ROBOT_ID=self.robot_id, ZENSIM_UNITREE_DOMAIN_ID=str(self.domain),
+                   PYTHONUNBUFFERED="1", ZENSIM_SIM_CLOCK=clock, **STACK_ENV)
+        self.log_path = tmp / "up.log"
+        self._log = self.log_path.open("wb")
+        self.up = subprocess.Popen([sys.executable, "-m", "zensim", "up", "--unitree", "--viz", "false",
+                                    "--router-endpoint", self.endpoint],
+                                   env=env, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
+        self.session = plain_client(self.endpoint, wait_for_router=True).__enter__()
+        self.odom = Latest(self.session, self.keys.odom, Odometry)
+        self.status = Latest(self.session, self.keys.sim_status, SimStatus)
+        self.status.keep_history = True
+        self.unitree = Latest(self.session, self.keys.unitree_status, UnitreeStatus)
+        self.unitree.wait(timeout_s=90, what="the adapter's status")
+        if clock == "realtime":  # under lockstep time stands still (no state) until the controller starts
+            self.odom.wait(timeout_s=30, what="the sim's odometry")
+
+    def sim_time(self) -> float:
+        return self.odom.wait(timeout_s=30, what="the sim's odometry").sim_time_s
+
+    def run_for(self, seconds: float) -> Odometry:
+        """Wait `seconds` of sim time (with room for a loaded machine)."""
+        end = self.sim_time() + seconds
+        return self.odom.wait(lambda m: m.sim_time_s >= end, 10 + 6 * seconds, f"{seconds} s of sim time")
+
+    def run_until(self, sim_time_s: float) -> Odometry:
+        """Wait for the first state at or after `sim_time_s`."""
+        wall_s = 10 + 6 * max(0.0, sim_time_s - self.sim_time())
+        return self.odom.wait(lambda m: m.sim_time_s >= sim_time_s, wall_s, f"sim time {sim_time_s:.2f} s")
+
+    def fell_since(self, index: int) -> bool:
+        return any(s.fallen for s in self.status.history[index:])
+
+    def close(self) -> None:
+        self.session.close()
+        self.switcher = None
+        self.up.send_signal(signal.SIGINT)
+        try:
+            self.up.wait(15)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.up.pid, signal.SIGKILL)
+        self._log.close()
+
+
+def _stack(tmp_path_factory, request, clock: str):  # noqa: ANN202
+    s = Stack(tmp_path_factory.mktemp(f"loco-{clock}"), clock)
+    yield s
+    s.close()
+    if request.session.testsfailed:
+        print(f"\n----- zensim up ({clock}) log -----\n{s.log_path.read_text()[-20000:]}")
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory, request):
+    """The realtime stack, for Unitree's examples (they pace themselves by the wall clock)."""
+    yield from _stack(tmp_path_factory, request, "realtime")
+
+
+@pytest.fixture(scope="module")
+def lockstep_stack(tmp_path_factory, request):
+    """The same stack under `clock: lockstep`, for the walk figures (10 s of sim time, in a few s)."""
+    yield from _stack(tmp_path_factory, request, "lockstep")
+
+
+def fresh_start(stack: Stack) -> str:
+    """The robot as after boot, whatever ran before: the controller released (the motion switcher's
+    ReleaseMode, as a low-level program does it), the sim reset to its spawn squat."""
+    if stack.switcher is None:
+        stack.switcher = SdkClient(stack.domain)
+    # What Unitree's low-level examples do first: CheckMode, ReleaseMode while a mode is active.
+    calls = stack.switcher.check_and_release_mode()
+    assert json.loads(stack.switcher.call(1001)[1])["name"] == ""
+    wait_for(lambda: not stack.unitree.value.loco_active, 10, "the controller released")
+    assert ctl(stack.session, stack.keys.ctl("reset"))["ok"]
+    stack.odom.wait(lambda m: m.sim_time_s < 1.0, 10, "the state after the reset")
+    return json.loads(calls[0][1])["name"]
+
+
+def stand_up(stack: Stack, loco: Loco) -> str:
+    """From the sim's spawn squat: squat-to-stand (FSM 706), which ends balancing on the policy.
+
+    Returns:
+        The mode the motion switcher named before the release ("sport" while the controller ran).
+    """
+    mode = fresh_start(stack)
+    assert loco.call("SetFsmId", 706) == 0
+    stack.run_for(3.0)
+    assert stack.odom.value.pos[2] > 0.74, stack.odom.value  # the policy's stance (the squat: 0.725 m)
+    return mode
+
+
+def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
+    stack = lockstep_stack
+    loco = Loco(stack.domain, stack.tmp / "loco.log")
+    try:
+        fresh_start(stack)
+        assert json.loads(stack.switcher.call(1001)[1]) == {"form": "0", "name": ""}
+        assert loco.call("GetFsmId") == [0, 0]  # passive until asked (under lockstep: no time passes)
+        first_status = len(stack.status.history)
+        stand_up(stack, loco)
+        assert loco.call("GetFsmId") == [0, 706]
+        # Windows of sim time counted from before each call: under lockstep the sim runs on (several
+        # times faster than the wall clock) while a request travels, so the robot walks at most 10 s.
+        start = stack.odom.value
+        loco.call("Move", 0.3, 0, 0, True)  # continous_move: duration 864000 s
+        stack.run_for(0.5)
+        assert loco.call("odommodestate")["mode"] == 3  # walking
+        walked = stack.run_until(start.sim_time_s + 10.0)
+        loco.call("StopMove")
+        forward, lateral = walked.pos[0] - start.pos[0], walked.pos[1] - start.pos[1]
+        walk_status = stack.status.history[first_status:]
+        print(f"\nsim rtf min {min(x.rtf for x in walk_status):.2f} median {np.median([x.rtf for x in walk_status]):.2f}, "
+              f"step jitter p99 max {max(x.step_jitter_p99_s for x in walk_status) * 1e3:.1f} ms; "
+              f"heading {yaw_of(walked.quat_wxyz) - yaw_of(start.quat_wxyz):+.3f} rad; {forward:.2f} m, {lateral:+.2f} m")
+        assert 2.0 <= forward <= 4.0, (start.pos, walked.pos)
+        assert abs(lateral) < 0.5, (start.pos, walked.pos)
+        # SportModeState_ read with the SDK's own type: the sim's ground truth.
+        state = loco.call("odommodestate")
+        assert state is not None and abs(state["position"][0] - stack.odom.value.pos[0]) < 0.3, state
+        # Stands still after StopMove (the policy balances in place).
+        settled = stack.run_for(1.0)
+        later = stack.run_for(3.0)
+        drift = math.dist(settled.pos[:2], later.pos[:2])
+        assert drift < 0.25, (settled.pos, later.pos)
+        assert loco.call("odommodestate")["mode"] == 1  # standing
+        # Turns in place: 0.3 rad/s for at most 5 s.
+        before_turn = stack.odom.value
+        loco.call("Move", 0, 0, 0.3, True)
+        turned = stack.run_until(before_turn.sim_time_s + 5.0)
+        loco.call("StopMove")
+        turn = (yaw_of(turned.quat_wxyz) - yaw_of(before_turn.quat_wxyz) + math.pi) % (2 * math.pi) - math.pi
+        assert 0.8 < turn < 1.8, turn
+        assert math.dist(turned.pos[:2], before_turn.pos[:2]) < 0.5, (before_turn.pos, turned.pos)
+        assert not stack.fell_since(first_status), "the robot fell while walking"
+        print(f"\nover the wire: walked {forward:.2f} m forward, {lateral:+.2f} m lateral in 10 s; "
+              f"{drift:.3f} m in 3 s after StopMove; turned {turn:+.2f} rad in 5 s")
+        # Unsupported calls get the robot's error codes, not silence.
+        assert loco.call("SetTaskId", 0) == 3203  # arm tasks (wave hand): not implemented
+        assert loco.call("SetFsmId", 12345) == 3204  # not an FSM id: parameter error
+        assert loco.call("SetFsmId", 706) == 0 and loco.call("GetFsmId") == [0, 706]  # the FSM toggles to squat
+        stack.run_for(2.0)
+        # Damp lets it fold. (First the motion switcher names the running controller, and releases it.)
+        assert stand_up(stack, loco) == "sport"
+        upright = stack.odom.value.pos[2]
+        loco.call("Damp")
+        folded = stack.run_for(3.0)
+        assert folded.pos[2] < upright - 0.15, (upright, folded.pos)
+        stack.unitree.wait(lambda u: u.loco_fsm_id == 1 and u.policy_steps > 500, 10, "the status to say damp")
+    finally:
+        loco.close()
+
+
+class Recorder:
+    """Joint states and the commands the controller sends, stamped with their arrival (wall) time."""
+
+    def __init__(self, stack: Stack) -> None:
+        self.joints: list[tuple[float, JointState]] = []
+        self.motors: list[tuple[float, MotorCommand]] = []
+        jc, mc = Codec(JointState), Codec(MotorCommand)
+        self._subs = [
+            stack.session.declare_subscriber(stack.keys.joints, lambda s: self.joints.append(
+                (time.monotonic(), jc.decode(s.payload.to_bytes(), str(s.encoding))))),
+            stack.session.declare_subscriber(stack.keys.motors, lambda s: self.motors.append(
+                (time.monotonic(), mc.decode(s.payload.to_bytes(), str(s.encoding))))),
+        ]
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+
+
+def test_sdk_arm7_example_moves_the_arms_over_the_standing_robot(lockstep_stack):
+    # Under lockstep: the example paces itself by the wall clock (50 Hz, 21 s) while the robot's time
+    # runs at the controller's pace, so a loaded machine cannot make the balancing robot stumble; the
+    # arms' tracking is measured in wall time, as the example sees it.
+    stack = lockstep_stack
+    loco = Loco(stack.domain, stack.tmp / "loco-arm.log")
+    try:
+        stand_up(stack, loco)
+    finally:
+        loco.close()
+    first_status = len(stack.status.history)
+    recorder = Recorder(stack)
+    example = Path(SDK) / "example/g1/high_level/g1_arm7_sdk_dds_example.py"
+    done = subprocess.run([sys.executable, str(HERE / "run_sdk_example.py"), str(stack.domain), str(example), "lo"],
+                          input="\n", capture_output=True, text=True, timeout=90)
+    time.sleep(1.0)
+    recorder.close()
+    assert "Done!" in done.stdout, done.stdout + done.stderr
+    assert not stack.fell_since(first_status), "the robot fell under arm_sdk"
+    assert stack.unitree.value.arm_sdk_received > 500 and stack.unitree.value.arm_sdk_rejected == 0
+    # Arm joints follow the commanded targets (RMS after a 50 ms lag) while arm_sdk holds weight 1 and
+    # lifts the arms and lowers them again (the example's stages 2 and 3: from 3 s to 18 s of its run;
+    # its stage 2 starts when the commanded left elbow leaves 0).
+    t0 = next(t for t, m in recorder.motors if m.q[18] > 0.02)
+    motor_times = np.array([t for t, _ in recorder.motors])
+    errors = []
+    for t, state in recorder.joints:
+        if not t0 + 0.5 < t < t0 + 14.5:
+            continue
+        i = np.searchsorted(motor_times, t - 0.05) - 1
+        if i < 0:
+            continue
+        target = np.asarray(recorder.motors[i][1].q)[ARMS]
+        errors.append(np.asarray(state.q)[ARMS] - target)
+    rms = float(np.sqrt(np.mean(np.square(errors))))
+    print(f"\narm_sdk: arm RMS {rms:.4f} rad after a 50 ms lag over {len(errors)} states")
+    assert rms < 0.05, rms
+    lifted = max(abs(s.q[18]) for t, s in recorder.joints)  # left elbow to pi/2 at the top
+    assert lifted > 1.2, lifted
+    # The release (stage 4, weight 1 -> 0 over 3 s, from 18 s of its run) and the second after: the arms
+    # go back to the controller without a jump.
+    steps = [(np.max(np.abs(np.asarray(b.q)[ARMS] - np.asarray(a.q)[ARMS])), ta - t0)
+             for (ta, a), (_, b) in zip(recorder.joints, recorder.joints[1:]) if b.seq == a.seq + 1]
+    largest = max(steps)
+    released = max(step for step, t in steps if t > 14.5)
+    def speed(start: float, end: float) -> float:
+        return max(np.max(np.abs(np.asarray(m.dq)[ARMS])) for t, m in recorder.joints if t0 + start < t < t0 + end)
+
+    before, during, after = speed(13.0, 15.0), speed(15.0, 18.0), speed(18.0, 1e9)
+    print(f"largest change of an arm joint between consecutive states: {largest[0]:.4f} rad at {largest[1]:.2f} s; "
+          f"during and after the release: {released:.4f} rad; arm joint speeds at most {before:.3f} rad/s before "
+          f"the release, {during:.3f} during, {after:.3f} after")
+    # The arms move a little all along (the policy balances by stepping in place): a jump at the release
+    # would show as speeds well above those of the seconds before it.
+    assert released < 0.02 and max(during, after) < 1.5 * before + 0.1, (released, before, during, after)
+
+
+def test_sdk_loco_client_example_through_its_stdin(stack):
+    # The robot as after boot: in the spawn squat, the controller passive. The example's first choice
+    # damps for 0.5 s (wall clock: so the realtime stack) before standing up; from a robot balancing on
+    # the policy, caught with one foot in the air, that drops it sideways, as it would drop a real one.
+    fresh_start(stack)
+    example = Path(SDK) / "example/g1/high_level/g1_loco_client_example.py"
+    proc = subprocess.Popen([sys.executable, str(HERE / "run_sdk_example.py"), str(stack.domain), str(example), "lo"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    output: list[str] = []
+    reader = threading.Thread(target=lambda: output.extend(proc.stdout), daemon=True)
+    reader.start()
+
+    def choose(line: str, seconds: float) -> Odometry:
+        proc.stdin.write(line + "\n")
+        proc.stdin.flush()
+        trace = []
+        end = stack.sim_time() + seconds
+        while stack.sim_time() < end:
+            trace.append(stack.odom.value)
+            stack.run_for(0.25)
+        print(f"\n{line!r}: " + " ".join(f"({m.sim_time_s:.2f} {m.pos[0]:+.2f} {m.pos[1]:+.2f} {m.pos[2]:.2f})" for m in trace))
+        return stack.odom.value
+
+    try:
+        first_status = len(stack.status.history)
+        choose("", 1.0)  # "Press Enter to continue..."
+        stood = choose("1", 4.0)  # Damp, 0.5 s, Squat2StandUp
+        assert stood.pos[2] > 0.7, stood
+        stack.unitree.wait(lambda u: u.loco_fsm_id == 706, 10, "the status to say squat-to-stand")
+        moved = choose("3", 2.5)  # Move(0.3, 0, 0) for 1 s
+        assert moved.pos[0] - stood.pos[0] > 0.1, (stood.pos, moved.pos)
+        turned = choose("5", 2.5)  # Move(0, 0, 0.3) for 1 s
+        assert abs(yaw_of(turned.quat_wxyz) - yaw_of(moved.quat_wxyz)) > 0.1
+        assert not stack.fell_since(first_status)
+        damped = choose("0", 2.5)  # Damp
+        assert damped.pos[2] < turned.pos[2] - 0.05, (turned.pos, damped.pos)
+        stack.unitree.wait(lambda u: u.loco_fsm_id == 1, 10, "the status to say damp")
+    finally:
+        proc.stdin.close()
+        proc.wait(15)
+        reader.join(5)
+        proc.stdout.close()
+    text = "".join(output)
+    for name in ("Squat2StandUp", "move forward", "move rotate", "damp"):
+        assert f"Test: {name}" in text, text
+    # It ran until its stdin ended (input() then raises EOFError: its only way out), and nothing else failed.
+    assert text.count("Traceback") == 1 and text.rstrip().endswith("EOFError: EOF when reading a line"), text
+
+
+def test_lockstep_walk_is_recorded_and_resimulates_to_zero(start_service, zsession, robot_id, tmp_path):
+    """Under `clock: lockstep` the controller is the clock; the recorder sees its commands; resim: 0 divergence."""
+    keys = Keys(robot_id)
+    domain = unused_domain_id()
+    start_service("sim", "--clock", "lockstep")
+    odom = Latest(zsession, keys.odom, Odometry)
+    odom.wait(timeout_s=60, what="the initial state")
+    adapter = start_service("unitree", "--domain-id", str(domain), "--interface", "lo")
+    wait_for(lambda: "unitree adapter up" in adapter.log() or not adapter.alive(), 60, "the adapter to start")
+    path = tmp_path / "walk.mcap"
+    recorder = start_service("record", "-o", str(path))
+    wait_for(lambda: "saved the sim's description" in recorder.log() or not recorder.alive(), 30, "the recorder")
+    loco = Loco(domain, tmp_path / "loco.log")
+    try:
+        assert loco.call("SetFsmId", 706) == 0
+        odom.wait(lambda m: m.sim_time_s >= 3.0, 120, "3 s of lockstep sim time")
+        loco.call("Move", 0.3, 0, 0, True)
+        moving = odom.value
+        walked = odom.wait(lambda m: m.sim_time_s >= moving.sim_time_s + 3.0, 120, "3 s of walking")
+        assert walked.pos[0] - moving.pos[0] > 0.4, (moving.pos, walked.pos)
+        loco.call("ZeroTorque")
+    finally:
+        loco.close()
+    adapter.signal(signal.SIGTERM)  # stop the clock: no more commands
+    adapter.proc.wait(15)
+    time.sleep(0.5)
+    recorder.signal(signal.SIGTERM)
+    assert recorder.proc.wait(15) == 0, recorder.log()
+    result = subprocess.run([sys.executable, "-m", "zensim", "resim", str(path)], capture_output=True, text=True,
+                            timeout=180)
+    assert result.returncode == 0, result.stderr
+    assert "lockstep recording" in result.stdout, result.stdout
+    # Every 20 ms of the ~6 s walk was one of the controller's commands, recorded and re-applied.
+    commands = int(re.search(r"(\d+) commands", result.stdout).group(1))
+    assert commands >= 250, result.stdout
+    assert "joint position 0 rad, base position 0 m, base orientation 0 rad" in result.stdout, result.stdout
+
+
+def test_bad_sport_requests_and_arm_sdk_samples_are_refused_counted_and_survived(lockstep_stack):
+    """Bad parameters get 3204 and change nothing; bad rt/arm_sdk samples are counted and never move the arms."""
+    from cyclonedds._clayer import ddspy_write
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.topic import Topic
+
+    from unitree_sdk import low_cmd_crc, new_low_cmd
+    from zensim.unitree.idl import LowCmd_
+
+    stack = lockstep_stack
+    loco = Loco(stack.domain, stack.tmp / "loco-bad.log")
+    try:
+        stand_up(stack, loco)
+        assert loco.call("SetFsmId", "x") == 3204
+        assert loco.call("SetVelocity", "a", 0, 0, 1.0) == 3204
+        assert loco.call("SetVelocity", 0.3, 0, 0, -1.0) == 3204
+        assert loco.call("SetBalanceMode", 7) == 3204
+        assert loco.call("GetFsmId") == [0, 706]  # nothing changed
+        before = stack.unitree.wait(what="a status")
+        participant = stack.switcher.participant
+        writer = DataWriter(participant, Topic(participant, "rt/arm_sdk", LowCmd_))
+        elbow_up = new_low_cmd()
+        elbow_up.motor_cmd[29].q = 1.0  # full weight
+        elbow_up.motor_cmd[18].q, elbow_up.motor_cmd[18].kp, elbow_up.motor_cmd[18].kd = 1.2, 60.0, 1.5
+        nan = new_low_cmd()
+        nan.motor_cmd[29].q, nan.motor_cmd[18].q = 1.0, float("nan")
+        negative = new_low_cmd()
+        negative.motor_cmd[29].q, negative.motor_cmd[18].kp = 1.0, -5.0
+        good = new_low_cmd().serialize()
+        elbow_up.crc = 0x12345678  # a wrong CRC: ignored, as the robot does
+        for cmd in (nan, negative):
+            cmd.crc = low_cmd_crc(cmd)
+
+        def counted() -> bool:  # a new writer's first samples may go before discovery matched it: resend
+            for cmd in (elbow_up, nan, negative):
+                writer.write(cmd)
+            ddspy_write(writer._ref, good[:100])  # not a LowCmd_ at all
+            status = stack.unitree.value
+            return status.arm_sdk_rejected - before.arm_sdk_rejected >= 40
+
+        wait_for(counted, 30, "the bad arm_sdk samples counted", 0.01)
+        after = stack.unitree.value
+        assert after.arm_sdk_received - after.arm_sdk_rejected == before.arm_sdk_received - before.arm_sdk_rejected
+        stack.run_for(1.0)
+        assert abs(stack.odom.value.pos[2] - 0.76) < 0.05  # still standing on the policy
+        joints = Latest(stack.session, stack.keys.joints, JointState)
+        assert abs(joints.wait(what="a state").q[18]) < 0.1  # no bad sample moved the elbow
+        assert stack.up.poll() is None
+        stack.unitree.wait(lambda u: u.policy_steps > before.policy_steps, 10, "the policy still stepping")
+        assert "not applied" in stack.log_path.read_text()  # logged (rate-limited), not silent
+    finally:
+        loco.close()
