@@ -233,8 +233,8 @@ ROLES: Final[tuple[Role, ...]] = (
     Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (and its locomotion controller)", publishes=("cmd/motors", "state/unitree"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/unitree",)),
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
-    Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/robot", "info/urdf")),
-    Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/robot", "info/urdf"), tokens=("alive/sim", "alive/replay")),
+    Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/**",)),
+    Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/**",), tokens=("alive/sim", "alive/replay")),
     Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**")),
     Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**",)),
 )

@@ -7,9 +7,10 @@ recorder received it (wall clock, ns since the epoch); its publish time is its s
 one (`sim_time_s`), else the log time. `cmd/joint/{joint}` carries a bare number on the wire; in the
 file it is `{"value": x}`, since JSON readers of MCAP expect objects.
 
-The sim's description is saved with the data: attachment `info/robot` (RobotInfo as JSON) and
-`info/urdf` (the URDF text), again after a sim restart or mode switch (readers here use the first),
-plus a metadata record `zensim` (robot id, format version).
+The sim's description is saved with the data: attachment `info/robot` (RobotInfo as JSON),
+`info/urdf` (the URDF text) and one `info/mesh/{path}` per mesh file it names, again after a sim
+restart or mode switch (readers here use the first), plus a metadata record `zensim` (robot id,
+format version).
 
 No zenoh here: `zensim resim` reads files without a network.
 """
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import IO, Any, Final
@@ -36,6 +37,9 @@ METADATA_NAME: Final = "zensim"
 FORMAT_VERSION: Final = "1"
 ROBOT_INFO_ATTACHMENT: Final = "info/robot"
 URDF_ATTACHMENT: Final = "info/urdf"
+MESH_ATTACHMENT_PREFIX: Final = "info/mesh/"
+"""Each mesh the description names is saved as attachment `info/mesh/{path}` (its path as RobotInfo.mesh_paths
+names it), so a replay can serve the robot's looks too."""
 SCALAR_SCHEMA: Final = {
     "title": "scalar",
     "description": "A bare number sent on cmd/joint/{joint}, wrapped as an object.",
@@ -174,6 +178,8 @@ class Recording:
     robot_info: RobotInfo | None
     urdf: str | None
     messages: list[Recorded]
+    meshes: dict[str, bytes] = field(default_factory=dict)
+    """Mesh files by their RobotInfo.mesh_paths name (the first description's), for the viewer of a replay."""
     unreadable: int = 0
     """Messages skipped because they do not decode as their key's type (a damaged or forged file)."""
 
@@ -222,7 +228,9 @@ def read_recording(path: str | Path) -> Recording:
             unreadable += 1  # a recording is untrusted input: one bad message is skipped, not fatal
             continue
         messages.append(Recorded(topic, split_key(topic)[1], log_time, message))
-    return Recording(robot_id, info, urdf, messages, unreadable)
+    meshes = {name[len(MESH_ATTACHMENT_PREFIX):]: data for name, data in attachments.items()
+              if name.startswith(MESH_ATTACHMENT_PREFIX)}
+    return Recording(robot_id, info, urdf, messages, meshes, unreadable)
 
 
 def _decode(topic: str, data: bytes, codecs: dict[type, Codec]) -> Any:

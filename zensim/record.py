@@ -1,6 +1,6 @@
 """`zensim record -o FILE.mcap`: every sample under `zensim/{robot}/**` into an MCAP file.
 
-Reads:  zensim/{robot}/** (every publication: states, commands, reports), info/robot and info/urdf (gets)
+Reads:  zensim/{robot}/** (every publication: states, commands, reports), info/robot, info/urdf and info/mesh/{path} (gets)
 Writes: the file (see zensim/mcapfile.py for the layout); nothing on the network
 
 Zenoh's callback only stamps the receive time and queues the raw bytes; the main thread decodes,
@@ -34,7 +34,7 @@ from zensim.common.wire import error_text, payload_of, read_payload
 from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, SimStatus, decode_scalar
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, STATE_CAP_BYTES
 
-from .mcapfile import (ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter, message_type_of, non_finite_at,
+from .mcapfile import (MESH_ATTACHMENT_PREFIX, ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter, message_type_of, non_finite_at,
                        split_key, strict_json)
 
 logger = logging.getLogger("zensim.record")
@@ -44,6 +44,8 @@ MAX_SAMPLE_BYTES = STATE_CAP_BYTES
 """Larger samples are not recorded (counted): no zensim publication comes near this."""
 MAX_CHANNELS = 1000
 """Distinct keys recorded; samples on keys past this are not recorded (counted). zensim has ~20 per robot."""
+MAX_MESH_BYTES = 256 * 1024 * 1024
+"""All the meshes of one description saved with it, together (the G1's shells: 2.8 MB; Unitree's full: 19 MB)."""
 MAX_KEY_CHARS = 256
 """Longest key recorded: a key is a channel name, written into every chunk index."""
 MAX_QUEUED = 20_000
@@ -113,6 +115,7 @@ class Recorder:
                 info = self._get(self.keys.robot_info + "?format=json")
                 described = msgspec.json.decode(info, type=RobotInfo)  # only a valid description is saved
                 urdf = self._get(self.keys.urdf)
+                meshes = self._meshes(described.mesh_paths)
             except (TimeoutError, ValueError, zenoh.ZError, msgspec.DecodeError, msgspec.ValidationError) as exc:
                 logger.debug("no description yet: %s", exc)
                 stop.wait(INFO_RETRY_S)
@@ -121,12 +124,25 @@ class Recorder:
             self._described = (described.run_id, described.mode)
             self.attachments.put((ROBOT_INFO_ATTACHMENT, "application/json", info))
             self.attachments.put((URDF_ATTACHMENT, "application/xml", urdf))
+            for path, data in meshes:
+                self.attachments.put((MESH_ATTACHMENT_PREFIX + path, "application/octet-stream", data))
             logger.info("saved the sim's description (info/robot, info/urdf; run %s, mode %s)", *self._described)
 
     def _watch_sim(self, status: SimStatus) -> None:
         """A restarted sim (new run_id) or a mode switch: describe it again."""
         if self._described is not None and (status.run_id, status.mode) != self._described:
             self._description_wanted.set()
+
+    def _meshes(self, paths: Sequence[str]) -> list[tuple[str, bytes]]:
+        """The description's mesh files (a replay serves them to its viewer), at most MAX_MESH_BYTES together."""
+        meshes, total = [], 0
+        for path in paths:
+            data = self._get(self.keys.mesh(path))
+            total += len(data)
+            if total > MAX_MESH_BYTES:
+                raise ValueError(f"the meshes come to more than {MAX_MESH_BYTES} bytes: not saved")
+            meshes.append((path, data))
+        return meshes
 
     def _get(self, key: str) -> bytes:
         for reply in self.session.get(key, timeout=2.0):

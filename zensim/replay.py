@@ -3,7 +3,7 @@
 Reads:  the MCAP file written by `zensim record`
 Writes: state/joints, state/odom, state/imu, state/sim, state/targets, state/applied of the recording,
         at their recorded pace times 1/rate (msgpack, as the sim writes them)
-Serves: info/robot and info/urdf from the recording (the viewer fetches the description there)
+Serves: info/robot, info/urdf and info/mesh/{path} from the recording (the viewer fetches the description there)
 Token:  alive/sim (the viewer fetches a description when a sim appears) and alive/replay
 
 Only states go out, never commands: a replay must not drive a live robot. It stands in for the sim
@@ -82,7 +82,9 @@ class Replay:
         self._declared = [
             session.declare_queryable(self.keys.robot_info, self._on_info),
             session.declare_queryable(self.keys.urdf, self._on_urdf),
+            session.declare_queryable(self.keys.mesh_any, self._on_mesh),
         ]
+        self._meshes_by_key = {self.keys.mesh(path): data for path, data in recording.meshes.items()}
         self.tokens = [session.liveliness().declare_token(self.keys.alive(name)) for name in ("sim", "replay")]
 
     def _on_info(self, query: zenoh.Query) -> None:
@@ -97,6 +99,14 @@ class Replay:
             query.reply_err(b"the recording holds no info/urdf")
             return
         query.reply(self.keys.urdf, self.recording.urdf.encode(), encoding=zenoh.Encoding.APPLICATION_XML)
+
+    def _on_mesh(self, query: zenoh.Query) -> None:
+        key = str(query.key_expr)
+        data = self._meshes_by_key.get(key)
+        if data is None:
+            query.reply_err(b"no such mesh in the recording (RobotInfo.mesh_paths lists them; older recordings hold none)")
+            return
+        query.reply(key, data, encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM)
 
     def play(self, rate: float, stop: threading.Event) -> int:
         """Publish every recorded state at its recorded pace / rate; returns how many went out."""
