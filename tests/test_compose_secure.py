@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -33,7 +35,8 @@ IMAGE_UID = 10001
 
 
 class Secured:
-    def __init__(self, secrets: Path, zenoh_port: int, viz_port: int) -> None:
+    def __init__(self, secrets: Path, zenoh_port: int, viz_port: int, logs: Callable[[], str]) -> None:
+        self.logs = logs
         self.secrets = secrets
         self.endpoint = f"tls/127.0.0.1:{zenoh_port}"
         self.zenoh_port = zenoh_port
@@ -75,7 +78,7 @@ def stack(tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureReque
         compose_stack.run("up", "-d", timeout_s=300)
         compose_stack.wait_healthy(SERVICES, timeout_s=240)
         ok = True
-        yield Secured(secrets, zenoh_port, viz_port)
+        yield Secured(secrets, zenoh_port, viz_port, compose_stack.logs)
         ok = request.session.testsfailed == failed_before
     finally:
         if not ok:
@@ -119,7 +122,14 @@ def test_viewer_watches_operator_drives(stack: Secured) -> None:
 
 
 def test_viewer_page_works_through_the_secured_stack(stack: Secured) -> None:
-    url = f"http://127.0.0.1:{stack.viz_port}/"
+    # Secured, the page asks its token even on loopback: the user reads it from `docker compose logs viz`.
+    bare = f"http://127.0.0.1:{stack.viz_port}/"
+    with pytest.raises(urllib.error.HTTPError) as refused:
+        urllib.request.urlopen(bare, timeout=10)
+    assert refused.value.code == 403
+    printed = re.findall(r"\?token=([A-Za-z0-9_-]+)", stack.logs())
+    assert printed, "the viz printed no URL with its token"
+    url = f"{bare}?token={printed[-1]}"
     with urllib.request.urlopen(url, timeout=10) as response:
         assert response.status == 200
     if chromium_binary() is None:

@@ -190,7 +190,7 @@ def test_invented_liveliness_tokens_do_not_grow_every_page_s_status(start_servic
             token.undeclare()
         good.stop()
     status = json.loads(newest)
-    assert len(status["alive"]) <= 32, len(status["alive"])
+    assert len(status["alive"]) <= 32 + 6, len(status["alive"])  # 32 names; zensim's six services always show
     assert "sim" in status["alive"] and "viz" in status["alive"]
     assert len(newest) < 8000, len(newest)
     assert viz.log().count("\n") < 200, "one log line per token"

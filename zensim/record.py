@@ -165,10 +165,16 @@ class Recorder:
             return
         while True:
             self._write(*item)
+            if self.full():
+                return  # the rest stay unwritten: the file ends at its bound, not a backlog later
             try:
                 item = self.samples.get_nowait()
             except queue.Empty:
                 return
+
+    def full(self) -> bool:
+        """Whether `--max-bytes` of JSON have been written."""
+        return bool(self.settings.max_bytes) and self.bytes_written >= self.settings.max_bytes
 
     def _write(self, key: str, data: bytes, encoding: str | None, received_ns: int) -> None:
         try:
@@ -226,7 +232,7 @@ def record(session: zenoh.Session, settings: RecordSettings, stop: threading.Eve
             now = time.monotonic()
             if settings.duration_s and now - started >= settings.duration_s:
                 break
-            if settings.max_bytes and recorder.bytes_written >= settings.max_bytes:
+            if recorder.full():
                 logger.warning("stopped at --max-bytes %d: %.2f MB of JSON written; start another recording to go on",
                                settings.max_bytes, recorder.bytes_written / 1e6)
                 break

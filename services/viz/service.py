@@ -74,7 +74,8 @@ ctl_logs = {verb: RateLimitedLog(logger) for verb in ("reset", "pause", "resume"
 alive_log = RateLimitedLog(logger)
 """The line per liveliness change: bounded, any session may declare tokens."""
 MAX_ALIVE_NAMES = 32
-"""Distinct services shown as alive; tokens past this are ignored (counted). zensim has six."""
+"""Distinct names shown as alive; other tokens past this are ignored (counted). zensim's own services
+(keys.SERVICES, six) always show."""
 MAX_ALIVE_NAME_CHARS = 32
 
 STATUS_PERIOD_S = 0.2
@@ -192,7 +193,9 @@ class VizService:
             return
         with self.alive_lock:
             if sample.kind == zenoh.SampleKind.PUT:
-                if len(self.alive) >= MAX_ALIVE_NAMES and service not in self.alive:
+                # zensim's own services always show (a flood of invented names must not hide the sim);
+                # other names share the cap.
+                if service not in SERVICES and service not in self.alive and len(self.alive) >= MAX_ALIVE_NAMES:
                     self.alive_ignored += 1
                     alive_log.warning("ignored liveliness token %r: already %d services shown (%d ignored so far)",
                                       service, MAX_ALIVE_NAMES, self.alive_ignored)
