@@ -15,6 +15,7 @@ from cyclonedds._clayer import ddspy_write
 from support import Latest, ctl, wait_for
 from unitree_sdk import KD, KP, SdkClient, low_cmd_crc, new_low_cmd, unused_domain_id
 from zensim.schemas import JointState, Keys, SimStatus, UnitreeStatus
+from zensim.unitree.ddsbind import is_loopback
 
 ELBOW = 18  # left_elbow_joint in the G1's motor order
 
@@ -143,3 +144,12 @@ def test_lowcmd_flood_is_shed_latest_wins(rig, zsession):
     lowstate_hz = (after.lowstate_published - before.lowstate_published) / wall_s
     assert lowstate_hz > 200, f"LowState_ at {lowstate_hz:.0f} Hz under the flood"
     assert adapter.alive(), adapter.log()[-3000:]
+
+
+def test_only_loopback_interfaces_are_pinned():
+    """Sockets are tied to an interface only when it is a loopback one: a physical interface's own
+    address is reached over loopback by a controller on the same machine, which pinning would cut off."""
+    assert is_loopback("lo")
+    assert not is_loopback("")  # Cyclone chooses: nothing to pin to
+    assert not is_loopback("no-such-interface0")
+    assert not is_loopback("../lo")  # a name, never a path
