@@ -62,7 +62,7 @@ def _level(priority: int) -> int:
     return logging.INFO
 
 
-def _sink(_userdata: int | None, data_p: ctypes._Pointer) -> None:  # type: ignore[name-defined]
+def _sink(_userdata: int | None, data_p: ctypes._Pointer[LogData]) -> None:
     try:
         data = data_p.contents
         site = (data.file or b"", int(data.line))
@@ -82,14 +82,14 @@ def route_cyclone_log() -> None:
         return
     ddsc = DDS._dll_handle  # the library the binding itself calls
     callback = LOG_WRITE_FN(_sink)
-    ddsc.dds_set_log_sink.argtypes = [LOG_WRITE_FN, ctypes.c_void_p]
+    ddsc.dds_set_log_sink.argtypes = [ctypes.c_void_p, ctypes.c_void_p]  # a callback, or NULL: Cyclone's own
     ddsc.dds_set_log_sink.restype = None
-    ddsc.dds_set_log_sink(callback, None)
+    ddsc.dds_set_log_sink(ctypes.cast(callback, ctypes.c_void_p), None)
     _installed.append(callback)
 
     def restore() -> None:
         # Before the interpreter goes away: Cyclone's threads may still log while the process ends.
         # dds_set_log_sink returns only once no thread uses the old sink.
-        ddsc.dds_set_log_sink(ctypes.cast(None, LOG_WRITE_FN), None)
+        ddsc.dds_set_log_sink(None, None)
 
     atexit.register(restore)

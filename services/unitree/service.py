@@ -22,8 +22,11 @@ as soon as its pair is complete.
 
 LowCmd_ floods are shed as on the Zenoh path (the sim's command thread): latest wins. The DDS thread
 takes rt/lowcmd at most once per LOWCMD_TAKE_PERIOD_S, decodes and forwards only the newest sample of
-each take and counts the others as shed (UnitreeStatus.lowcmd_shed), unread: a 10 kHz flood costs
-one decode and one cmd/motors put per take, not 10 000 a second, and the sim keeps time.
+each take and counts the others as shed (UnitreeStatus.lowcmd_shed), unread: however fast a flood
+comes, it costs at most one decode and one cmd/motors put per ms, and the sim keeps time. (Before,
+Cyclone's default one-sample reader history dropped most of a flood silently and the rest, ~1800 a
+second at 10 kHz, all went on to the sim.) The price: a LowCmd_ that comes less than 1 ms after the
+previous take waits for the rest of that ms; a controller at 1 kHz or slower never does.
 
 Latency (benchmarks/unitree_latency.py, docs/benchmarks.md): the state path is one thread, so a
 JointState and the Imu the sim sends right after it are handled in order on the thread that already
