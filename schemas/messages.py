@@ -507,6 +507,10 @@ class UnitreeStatus(Message, frozen=True, tag="unitree_status", kw_only=True):
     """The controller's FSM id (LocoClient: 0 zero torque, 1 damp, 3 sit, 500 start, 702, 706)."""
     policy_steps: int = 0
     """Steps of the walking policy run since start."""
+    lowcmd_shed: int = 0
+    """LowCmd_ samples read from rt/lowcmd but dropped unread because a newer one came in the same take
+    (latest wins, as on cmd/motors: it would never have been applied). Not errors: counted in
+    lowcmd_received, not in rejected."""
 
 
 class Ros1Status(Message, tag="ros1_status", frozen=True, kw_only=True):

@@ -7,7 +7,10 @@
 
 The domain is configured as the SDK's `ChannelFactoryInitialize(domain, interface)` does it:
 an XML config naming the network interface (Cyclone DDS turns multicast off on `lo` and finds
-local participants by unicast). QoS is Cyclone's default on both sides, as in the SDK.
+local participants by unicast). QoS is Cyclone's default on both sides, as in the SDK, except
+rt/lowcmd's reader history (LOWCMD_HISTORY), which only the reader sees. On a loopback interface
+the participant's sockets are tied to it (ddsbind.py: Cyclone binds them to 0.0.0.0), and Cyclone's
+own log lines go through a rate limiter (ddslog.py).
 
 LowCmd_/LowState_ travel as raw serialized bytes through the binding's C layer (`_clayer`, the
 calls DataReader.take and DataWriter.write make after their own, slow, (de)serialization; see
@@ -17,22 +20,32 @@ binding to exactly 0.10.2 (scripts/install-cyclonedds).
 
 from __future__ import annotations
 
+import logging
 from xml.sax.saxutils import quoteattr
 
 from cyclonedds._clayer import ddspy_take, ddspy_write
-from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.core import InstanceState, Policy, Qos, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
+from .ddsbind import is_loopback, pin_to_device, udp_sockets
+from .ddslog import route_cyclone_log
 from .idl import LowCmd_, LowState_, Request_, Response_
 
 LOWCMD_TOPIC = "rt/lowcmd"
 LOWSTATE_TOPIC = "rt/lowstate"
 MOTION_SWITCHER_REQUEST = "rt/api/motion_switcher/request"
 MOTION_SWITCHER_RESPONSE = "rt/api/motion_switcher/response"
+
+logger = logging.getLogger("zensim.unitree")
+
+LOWCMD_HISTORY = 32
+"""LowCmd_ samples rt/lowcmd's reader keeps until they are taken (Cyclone's default keeps 1 and replaces it
+unseen). The adapter applies the newest of each take and counts the rest as shed; a flood faster than
+this many samples per take (32 kHz at 1 ms takes) also loses older samples in Cyclone's cache, uncounted."""
 
 
 def domain_config(interface: str) -> str:
@@ -56,10 +69,21 @@ class UnitreeDds:
     """
 
     def __init__(self, domain_id: int, interface: str) -> None:
+        route_cyclone_log()  # before the domain exists: its first lines already go through the limiter
+        before = udp_sockets()
         # The Domain object must outlive the participant: it holds the configuration.
         self.domain = Domain(domain_id, domain_config(interface))
         self.participant = DomainParticipant(domain_id)
-        self.lowcmd_reader = DataReader(self.participant, Topic(self.participant, LOWCMD_TOPIC, LowCmd_))
+        self.pinned_sockets = 0
+        """Cyclone's wildcard-bound sockets tied to the loopback interface (ddsbind.py)."""
+        if is_loopback(interface):
+            try:
+                self.pinned_sockets = pin_to_device(udp_sockets() - before, interface)
+            except OSError as exc:  # Linux before 5.7 without CAP_NET_RAW: works, but not confined
+                logger.error("cannot tie Cyclone DDS's sockets to %s (%s): DDS takes packets from every "
+                             "interface", interface, exc)
+        self.lowcmd_reader = DataReader(self.participant, Topic(self.participant, LOWCMD_TOPIC, LowCmd_),
+                                        qos=Qos(Policy.History.KeepLast(LOWCMD_HISTORY)))
         self.lowstate_writer = DataWriter(self.participant, Topic(self.participant, LOWSTATE_TOPIC, LowState_))
         self.request_reader = DataReader(self.participant, Topic(self.participant, MOTION_SWITCHER_REQUEST, Request_))
         self.response_writer = DataWriter(self.participant, Topic(self.participant, MOTION_SWITCHER_RESPONSE, Response_))
@@ -74,7 +98,10 @@ class UnitreeDds:
         """Block until a reader has data or `timeout_s` passes."""
         self.waitset.wait(duration(seconds=timeout_s))
 
-    def take_lowcmd(self, max_samples: int = 64) -> list[bytes]:
+    def has_lowcmd(self) -> bool:
+        return bool(self.lowcmd_ready.triggered)
+
+    def take_lowcmd(self, max_samples: int = LOWCMD_HISTORY) -> list[bytes]:
         """Serialized LowCmd_ samples that arrived (header included), oldest first."""
         result = ddspy_take(self.lowcmd_reader._ref, max_samples)
         if isinstance(result, int):

@@ -75,6 +75,7 @@ class HighLevel:
         self._next_odom_s: float | None = None
         self._odom_count = 0
         self._log = RateLimitedLog(logger, 1.0)
+        self._request_log = RateLimitedLog(logger, 1.0)  # one line per request: a flood of them is bounded
         # The newest odometry only, pulled at SportModeState_'s rate from the state ticks: a Python
         # callback per 500 Hz sample would take the GIL from the DDS thread 500 times a second.
         self._odom = session.declare_subscriber(keys.odom, zenoh.handlers.RingChannel(1))
@@ -192,7 +193,7 @@ class HighLevel:
                         self._tick(force=True)
                 else:
                     code, data = sport.RPC_ERR_SERVER_API_NOT_IMPL, ""
-            logger.info("sport: api %d %s -> code %d %s", identity.api_id, bounded(request.parameter, 80), code,
+            self._request_log.info("sport: api %d %s -> code %d %s", identity.api_id, bounded(request.parameter, 80), code,
                         bounded(data, 80))
             if request.header.policy.noreply:
                 continue
@@ -236,7 +237,7 @@ class HighLevel:
         """The motion switcher's ReleaseMode: the controller stops sending."""
         with self._lock:
             if self.controller.state.active:
-                logger.info("sport service released: the locomotion controller stops sending")
+                self._request_log.info("sport service released: the locomotion controller stops sending")
             self.controller.release()
             self.controller.arm_sdk = None
 

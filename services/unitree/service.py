@@ -20,6 +20,14 @@ A DDS thread waits on both DDS readers; one zenoh callback thread (one subscribe
 builds LowState_. Nothing queues: a LowCmd_ is forwarded as soon as it is read, a LowState_ written
 as soon as its pair is complete.
 
+LowCmd_ floods are shed as on the Zenoh path (the sim's command thread): latest wins. The DDS thread
+takes rt/lowcmd at most once per LOWCMD_TAKE_PERIOD_S, decodes and forwards only the newest sample of
+each take and counts the others as shed (UnitreeStatus.lowcmd_shed), unread: however fast a flood
+comes, it costs at most one decode and one cmd/motors put per ms, and the sim keeps time. (Before,
+Cyclone's default one-sample reader history dropped most of a flood silently and the rest, ~1800 a
+second at 10 kHz, all went on to the sim.) The price: a LowCmd_ that comes less than 1 ms after the
+previous take waits for the rest of that ms; a controller at 1 kHz or slower never does.
+
 Latency (benchmarks/unitree_latency.py, docs/benchmarks.md): the state path is one thread, so a
 JointState and the Imu the sim sends right after it are handled in order on the thread that already
 runs, with no hand-over between two callback threads (each a wake-up and a GIL transfer, and with two
@@ -61,6 +69,9 @@ logger = logging.getLogger("zensim.unitree")
 
 DDS_WAIT_S = 0.1
 """Longest the DDS thread blocks before it looks at the stop flag."""
+LOWCMD_TAKE_PERIOD_S = 0.001
+"""Shortest wall time between two takes of rt/lowcmd. A controller at 500 Hz or 1 kHz (the SDK's
+examples) sends slower than this and never waits; a faster one has its older samples shed."""
 GIL_SWITCH_INTERVAL_S = 0.0002
 """Longest a thread that wakes up waits for the GIL while another holds it (CPython default: 5 ms)."""
 
@@ -88,6 +99,7 @@ class Counters:
     def __init__(self) -> None:
         self.lowcmd_received = 0
         self.lowcmd_forwarded = 0
+        self.lowcmd_shed = 0
         self.crc_errors = 0
         self.rejected = 0
         self.ab_mode_commands = 0
@@ -118,6 +130,7 @@ class UnitreeAdapter:
         self._imu_codec = Codec(Imu)
         self._sim_codec = Codec(SimStatus)
         self._reject_log = RateLimitedLog(logger, 1.0)
+        self._request_log = RateLimitedLog(logger, 1.0)
         self._state_log = RateLimitedLog(logger, 5.0)
         self._ab_logged = False
         self._motors = TypedPublisher.of(session, keys, topics.MOTORS)
@@ -192,8 +205,13 @@ class UnitreeAdapter:
 
     # --- DDS -> zensim (the DDS thread) --------------------------------------------
 
-    def handle_lowcmd(self, data: bytes) -> None:
-        """Check one serialized LowCmd_ and forward it, or count why not."""
+    def handle_lowcmd(self, data: bytes, shed: int = 0) -> None:
+        """Check one serialized LowCmd_ and forward it, or count why not.
+
+        Args:
+            data: the newest LowCmd_ of a take.
+            shed: how many older ones that take held (counted as read and shed, not decoded).
+        """
         command = None
         error = None
         crc_error = False
@@ -208,7 +226,8 @@ class UnitreeAdapter:
             error = bounded(str(exc))
         with self._lock:
             c = self.counters
-            c.lowcmd_received += 1
+            c.lowcmd_received += 1 + shed
+            c.lowcmd_shed += shed
             if command is None:
                 if crc_error:
                     c.crc_errors += 1
@@ -254,7 +273,7 @@ class UnitreeAdapter:
                 self.highlevel.release()  # a low-level program takes the robot from the sport service
             with self._lock:
                 self.counters.motion_switcher_requests += 1
-            logger.info("motion switcher: api %d -> code %d %s", identity.api_id, code, data)
+            self._request_log.info("motion switcher: api %d -> code %d %s", identity.api_id, code, data)
             if request.header.policy.noreply:
                 continue
             self._dds.respond(Response_(
@@ -265,10 +284,17 @@ class UnitreeAdapter:
 
     def dds_loop(self, stop: threading.Event) -> None:
         """The DDS thread: wait for samples, handle them, until `stop`."""
+        next_take = 0.0
         while not stop.is_set():
             self._dds.wait(DDS_WAIT_S)
-            for data in self._dds.take_lowcmd():
-                self.handle_lowcmd(data)
+            if self._dds.has_lowcmd():
+                wait_s = next_take - time.monotonic()
+                if wait_s > 0:
+                    time.sleep(wait_s)  # at most LOWCMD_TAKE_PERIOD_S: a flood's samples pile up meanwhile
+                next_take = time.monotonic() + LOWCMD_TAKE_PERIOD_S
+                samples = self._dds.take_lowcmd()
+                if samples:  # latest wins: the older ones would be overwritten before a physics step
+                    self.handle_lowcmd(samples[-1], shed=len(samples) - 1)
             if self._dds.has_request():
                 self.handle_requests()
             if self.highlevel is not None:
@@ -287,7 +313,7 @@ class UnitreeAdapter:
             status = UnitreeStatus(
                 seq=seq, dds_domain_id=self._settings.domain_id,
                 dds_interface=self._settings.interface,
-                lowcmd_received=c.lowcmd_received, lowcmd_forwarded=c.lowcmd_forwarded,
+                lowcmd_received=c.lowcmd_received, lowcmd_forwarded=c.lowcmd_forwarded, lowcmd_shed=c.lowcmd_shed,
                 crc_errors=c.crc_errors, rejected=c.rejected, ab_mode_commands=c.ab_mode_commands,
                 lowstate_published=c.lowstate_published, lowstate_rate_hz=rate_hz,
                 motion_switcher_requests=c.motion_switcher_requests, sim_time_s=c.sim_time_s,
@@ -346,6 +372,7 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
         dds_thread.join(2 * DDS_WAIT_S + 1.0)
         adapter.close()
     c = adapter.counters
-    logger.info("%d LowCmd_ read, %d forwarded, %d crc errors, %d rejected; %d LowState_ written",
-                c.lowcmd_received, c.lowcmd_forwarded, c.crc_errors, c.rejected, c.lowstate_published)
+    logger.info("%d LowCmd_ read, %d forwarded, %d shed, %d crc errors, %d rejected; %d LowState_ written",
+                c.lowcmd_received, c.lowcmd_forwarded, c.lowcmd_shed, c.crc_errors, c.rejected,
+                c.lowstate_published)
     return 0
