@@ -20,6 +20,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import mujoco
@@ -113,6 +114,8 @@ class Simulation:
         limits: bounds on commanded gains.
         watchdog_timeout_s: wall-clock silence after which the default pose is held.
         timestep_s: physics step; None keeps the control file's.
+        shared: a robot of a world (services/sim/world.py): its Robot in the world's model, the world's
+            MjData, and the world's step (which steps every robot at once). None: a world of its own.
     """
 
     def __init__(
@@ -122,8 +125,10 @@ class Simulation:
         limits: Limits,
         watchdog_timeout_s: float,
         timestep_s: float | None = None,
+        shared: tuple[Robot, mujoco.MjData, Callable[[int], None]] | None = None,
     ) -> None:
         self.files = files
+        self._shared = shared
         self.limits = limits
         self.watchdog_timeout_s = watchdog_timeout_s
         self._timestep_override = timestep_s
@@ -142,11 +147,17 @@ class Simulation:
     # --- model -----------------------------------------------------------
 
     def _load(self, mode: Mode) -> None:
-        robot = build(self.files, mode)
-        if self._timestep_override:
-            robot.model.opt.timestep = self._timestep_override
+        if self._shared is not None:
+            if mode != self._shared[0].mode:
+                raise CommandError(f"a robot of a world stays in the world's mode ({self._shared[0].mode}); "
+                                   "restart the world in another mode")
+            robot, self.data = self._shared[0], self._shared[1]
+        else:
+            robot = build(self.files, mode)
+            if self._timestep_override:
+                robot.model.opt.timestep = self._timestep_override
+            self.data = mujoco.MjData(robot.model)
         self.robot = robot
-        self.data = mujoco.MjData(robot.model)
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self.steps = 0
@@ -185,6 +196,8 @@ class Simulation:
         q = self._pose_from(request)  # checked before anything changes
         self._check_height(request)
         if request.mode is not None and request.mode != self.mode:
+            if self._shared is not None:
+                raise CommandError(f"a robot of a world stays in the world's mode ({self.mode})")
             other = build(self.files, request.mode)  # checked against the new mode before switching
             self._check_height(request, other)
             self._load(request.mode)
@@ -349,14 +362,21 @@ class Simulation:
         written only when they changed: a new command, or the watchdog
         engaging or letting go. That keeps the hot loop at MuJoCo's own cost.
         """
+        if self._shared is not None:  # one robot of a world: the world steps every robot together
+            self._shared[2](n)
+            return
         model, data = self.robot.model, self.data
         for _ in range(n):
-            targets = self.targets()
-            if targets is not self._applied:
-                self._apply(targets)
+            self.apply_targets()
             mujoco.mj_step2(model, data)
             mujoco.mj_step1(model, data)
         self.steps += n
+
+    def apply_targets(self) -> None:
+        """Give the actuators the current targets, when they changed since the last step."""
+        targets = self.targets()
+        if targets is not self._applied:
+            self._apply(targets)
 
     def broken(self) -> str | None:
         """Why the physics state cannot be trusted any more, or None while it is sound.
@@ -369,10 +389,12 @@ class Simulation:
         reset and says why, instead of streaming a teleported robot.
         """
         data, robot = self.data, self.robot
-        for warning in BROKEN_PHYSICS_WARNINGS:
-            if data.warning[warning].number > 0:
-                return f"MuJoCo {warning.name} (index {data.warning[warning].lastinfo})"
-        if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
+        if robot.slot is None:  # in a world, MuJoCo's warnings are the world's (world.py checks them)
+            reason = broken_warning(data)
+            if reason:
+                return reason
+        qpos, qvel = (data.qpos, data.qvel) if robot.slot is None else (data.qpos[robot.slot.qpos], data.qvel[robot.slot.dof])
+        if not (np.all(np.isfinite(qpos)) and np.all(np.isfinite(qvel))):
             return "a non-finite position or velocity"
         if robot.free_qpos_adr >= 0:
             height = float(data.qpos[robot.free_qpos_adr + 2])
@@ -436,6 +458,14 @@ class Simulation:
             mesh_paths=tuple(robot.mesh_files),
             keys=keys.table(),
         )
+
+
+def broken_warning(data: mujoco.MjData) -> str | None:
+    """The first of MuJoCo's bad-state warnings raised on `data`, as a reason; None when none was."""
+    for warning in BROKEN_PHYSICS_WARNINGS:
+        if data.warning[warning].number > 0:
+            return f"MuJoCo {warning.name} (index {data.warning[warning].lastinfo})"
+    return None
 
 
 def reset_height_range(robot: Robot) -> tuple[float, float]:

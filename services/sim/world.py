@@ -1,0 +1,379 @@
+"""Several robots in one MuJoCo world: the world file, the shared model, and the one loop that steps it.
+
+`zensim sim --world lab.toml` builds ONE model holding every robot of the file (robots/builder.py
+`build_world`: one floor, contacts between robots), steps it in one loop, and serves each robot
+on its own key root `zensim/{robot}/...` through an ordinary SimService (service.py): the same
+messages, ctl verbs, watchdog, bounds and episode as a robot alone, so the bridge, the viewer, the
+recorder and the Unitree adapter work per robot unchanged. What is the world's rather than one
+robot's lives under the world's id: `zensim/{world}/world/pause|resume|step|reset`.
+
+Time is the world's: a robot's ctl/pause, ctl/resume and ctl/step act on the whole world (its
+robots cannot run apart), and a robot's ctl/reset resets only that robot (world time goes on).
+
+Threads: as for one robot (docs/architecture.md, "Threads"), with one physics lock for the world,
+shared by every robot's service; the loop here holds it while it steps and publishes.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated
+
+import msgspec
+import mujoco
+import zenoh
+
+from zensim.common.claim import current_owner, taken_message
+from zensim.common.pacing import Pacer
+from zensim.common.session import StartupError
+from zensim.common.wire import Refusals, decode_input, payload_of, reply
+from zensim.robots import robot_files
+from zensim.robots.builder import Placement, build_world
+from zensim.schemas import (
+    Codec,
+    CtlReply,
+    DecodeError,
+    Keys,
+    PauseRequest,
+    ResetRequest,
+    ResumeRequest,
+    StepRequest,
+    bounded,
+    is_json,
+)
+from zensim.schemas.codec import Format
+from zensim.schemas.keys import check_robot_id
+from zensim.schemas.messages import Mode
+
+from .physics import Limits, Simulation, broken_warning
+from .requests import Request, Requests
+from .service import FAST_BATCH_STEPS, GIL_SWITCH_INTERVAL_S, PAUSED_POLL_S, PhysicsLock, SimService, WorldClock
+from .settings import SimSettings
+
+logger = logging.getLogger("zensim.sim")
+
+WORLD_INPUT_CAP_BYTES = 4096
+"""Largest world/* request: they carry at most a step count."""
+
+
+class RobotEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One `[[robots]]` table of a world file."""
+
+    id: str
+    """The robot's id: its key root is zensim/{id}/."""
+    robot: str | None = None
+    """A bundled robot (unitree_g1, alias g1); default unitree_g1 unless `urdf` is given."""
+    urdf: str | None = None
+    """Any URDF instead (meshes resolve beside it); a relative path is relative to the world file."""
+    control: str | None = None
+    """Its control file (default: the bundled robot's, else control.toml beside the URDF)."""
+    xy: tuple[float, float] = (0.0, 0.0)
+    """Spawn position of the base in the world, m."""
+    yaw_deg: Annotated[float, msgspec.Meta(ge=-360, le=360)] = 0.0
+    """Spawn heading, degrees about the world's z (0 faces +x)."""
+    mode: Mode | None = None
+    """floating or fixed (welded on a stand at its spawn); default: --mode."""
+
+
+class WorldFile(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A world file: `id` (the world's key root, default `world`) and its robots."""
+
+    robots: Annotated[list[RobotEntry], msgspec.Meta(min_length=1, max_length=256)]
+    id: str = "world"
+
+
+def read_world_file(path: str) -> WorldFile:
+    """Parse and check a world file.
+
+    Raises:
+        StartupError: unreadable, malformed, unknown fields, duplicate or bad ids, non-finite spawns.
+    """
+    try:
+        world = msgspec.toml.decode(Path(path).read_bytes(), type=WorldFile)
+        ids = [world.id, *(entry.id for entry in world.robots)]
+        for robot_id in ids:
+            check_robot_id(robot_id)
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"ids must be unique (the world's and its robots'): {ids}")
+        for entry in world.robots:
+            if not all(math.isfinite(v) and abs(v) <= 1e4 for v in entry.xy):
+                raise ValueError(f"robot {entry.id}: xy must be finite and within 10 km")
+    except (OSError, ValueError, msgspec.DecodeError) as exc:
+        raise StartupError(f"world file {path} (--world / ZENSIM_SIM_WORLD): {bounded(str(exc), 400)}") from None
+    return world
+
+
+class World:
+    """One MjModel/MjData holding every robot, and the Simulation of each (which share the data)."""
+
+    def __init__(self, world_file: WorldFile, base: Path, settings: SimSettings) -> None:
+        self.id = world_file.id
+        placements = []
+        try:
+            for entry in world_file.robots:
+                urdf = None if entry.urdf is None else str(base / entry.urdf)
+                control = None if entry.control is None else str(base / entry.control)
+                files = robot_files(None if urdf else (entry.robot or "unitree_g1"), urdf=urdf, control=control)
+                placements.append(Placement(f"{entry.id}/", files, entry.xy, math.radians(entry.yaw_deg), entry.mode))
+            robots = build_world(placements, settings.mode, settings.timestep_s)
+        except (OSError, ValueError) as exc:
+            raise StartupError(f"cannot build the world ({settings.world}): {bounded(str(exc), 400)}") from None
+        self.model = robots[0].model
+        self.data = mujoco.MjData(self.model)
+        self.mode: Mode = settings.mode
+        self.steps = 0
+        self.resets = 0
+        limits = Limits(max_kp=settings.max_kp, max_kd=settings.max_kd)
+        self.sims: dict[str, Simulation] = {}
+        for entry, placement, robot in zip(world_file.robots, placements, robots):
+            self.sims[entry.id] = Simulation(placement.files, robot.mode, limits, settings.watchdog_timeout_s,
+                                             shared=(robot, self.data, self.step))
+        self._sims = tuple(self.sims.values())
+        mujoco.mj_forward(self.model, self.data)
+
+    @property
+    def timestep_s(self) -> float:
+        return float(self.model.opt.timestep)
+
+    def step(self, n: int = 1) -> None:
+        """(physics lock held) Advance every robot `n` steps together, each with its own targets."""
+        model, data, sims = self.model, self.data, self._sims
+        for _ in range(n):
+            for sim in sims:
+                sim.apply_targets()
+            mujoco.mj_step2(model, data)
+            mujoco.mj_step1(model, data)
+        self.steps += n
+        for sim in sims:
+            sim.steps += n
+
+    def reset_time(self) -> None:
+        """(physics lock held) mj_resetData of the whole world: time 0, warnings cleared (robots reset next)."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.steps = 0
+        self.resets += 1
+
+
+def load_world(settings: SimSettings) -> World:
+    """Read the world file the settings name and build it (before the session: a bad file fails fast)."""
+    assert settings.world is not None
+    if settings.clock != "realtime":
+        raise StartupError("a world runs --clock realtime for now (lockstep serves one robot)")
+    world_file = read_world_file(settings.world)
+    world = World(world_file, Path(settings.world).resolve().parent, settings)
+    logger.info("world %s: %d robots (%s), %d bodies, mode %s, step %.4f s", world.id, len(world.sims),
+                ", ".join(world.sims), world.model.nbody, world.mode, world.timestep_s)
+    return world
+
+
+class WorldService:
+    """Serves every robot of a World (one SimService each) and the world's own verbs; runs the one loop."""
+
+    def __init__(self, session: zenoh.Session, settings: SimSettings, world: World, stop: threading.Event) -> None:
+        self.world = world
+        self.settings = settings
+        self.stop = stop
+        self.keys = Keys(world.id)
+        self.run_id = uuid.uuid4().hex[:16]
+        self.clock = WorldClock(settings.paused, Pacer(world.timestep_s, settings.rtf))
+        self.physics = PhysicsLock()
+        self.robots = [
+            SimService(session, msgspec.structs.replace(settings, robot_id=robot_id), sim, stop,
+                       world=(self.clock, self.physics))
+            for robot_id, sim in world.sims.items()
+        ]
+        self.refusals = Refusals(logger, "world request")
+        self.requests = Requests(lambda reason: self._reply(ok=False, error=reason))
+        self.reply_codec = Codec(CtlReply)
+        self._last = self._take_reply_state()
+        keys = self.keys
+        self._declared = [
+            session.declare_queryable(keys.world_pause, self._verb(keys.world_pause, PauseRequest, self._pause)),
+            session.declare_queryable(keys.world_resume, self._verb(keys.world_resume, ResumeRequest, self._resume)),
+            session.declare_queryable(keys.world_step, self._verb(keys.world_step, StepRequest, self._step)),
+            session.declare_queryable(keys.world_reset, self._verb(keys.world_reset, ResetRequest, self._reset)),
+        ]
+
+    # --- the world's verbs ---------------------------------------------------------------------
+
+    def _verb(self, own_key: str, request_type: type, handler: Callable) -> Callable[[zenoh.Query], None]:
+        codec = Codec(request_type)
+
+        def on_query(query: zenoh.Query) -> None:
+            payload = query.payload
+            fmt: Format = ("json" if payload is None or len(payload) > WORLD_INPUT_CAP_BYTES
+                           or is_json(*payload_of(query)) else "msgpack")
+            if str(query.key_expr) != own_key:
+                error = self.refusals.refuse(query.key_expr, f"acts only on a query for exactly {own_key}; nothing was done")
+                reply(query, own_key, self._reply(ok=False, error=error), fmt, self.reply_codec)
+                return
+            try:
+                request = decode_input(query, codec, WORLD_INPUT_CAP_BYTES)
+            except DecodeError as exc:
+                reply(query, own_key, self._reply(ok=False, error=self.refusals.refuse(query.key_expr, str(exc))),
+                      fmt, self.reply_codec)
+                return
+
+            def answer(query: zenoh.Query, message: CtlReply) -> None:
+                if not message.ok:
+                    self.refusals.refuse(query.key_expr, message.error or "refused")
+                reply(query, own_key, message, fmt, self.reply_codec)
+
+            self.requests.submit(Request(query, lambda: handler(request), answer))
+
+        return on_query
+
+    def _take_reply_state(self) -> CtlReply:
+        """(physics lock held) The world's figures, taken whole, for replies made off the loop."""
+        world = self.world
+        return CtlReply(ok=True, sim_time_s=float(world.data.time), paused=self.clock.paused, mode=world.mode,
+                        steps=world.steps, episode=f"{self.run_id}.{world.resets}")
+
+    def _reply(self, ok: bool = True, error: str | None = None) -> CtlReply:
+        return msgspec.structs.replace(self._last, ok=ok, error=error)
+
+    def _pause(self, _request: PauseRequest) -> CtlReply:
+        self.clock.paused = True
+        return self._take_reply_state()
+
+    def _resume(self, _request: ResumeRequest) -> CtlReply:
+        self.clock.paused = False
+        self.clock.pacer.restart()
+        return self._take_reply_state()
+
+    def _step(self, request: StepRequest) -> CtlReply:
+        if not self.clock.paused:
+            return self._reply(ok=False, error="world/step works while paused; send world/pause first")
+        self.world.step(request.n)
+        self._after_steps()
+        for robot in self.robots:
+            robot._publish_states()
+        return self._take_reply_state()
+
+    def _reset(self, request: ResetRequest) -> CtlReply:
+        if request != ResetRequest():
+            return self._reply(ok=False, error="world/reset takes an empty request (every robot to its default "
+                                               "pose); send ctl/reset to one robot for a pose, a height or a mode")
+        self.world.reset_time()
+        for robot in self.robots:
+            robot._reset(ResetRequest())
+        self.clock.pacer = Pacer(self.world.timestep_s, self.settings.rtf)
+        logger.info("world reset")
+        return self._take_reply_state()
+
+    def _run_request(self, request: Request) -> CtlReply:
+        with self.physics:
+            try:
+                message = request.run()
+            except Exception as exc:  # a failed request must not take the loop down
+                logger.exception("world request failed")
+                message = self._reply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}"))
+            self._last = self._take_reply_state()
+        return message
+
+    # --- the loop -------------------------------------------------------------------------------
+
+    def _run_jobs(self) -> None:
+        """(loop thread) Every waiting request: the world's, then each robot's."""
+        while self.requests.run_next(0.0, self._run_request):
+            pass
+        for robot in self.robots:
+            robot._run_jobs()
+
+    def _after_steps(self) -> None:
+        """(physics lock held) Broken physics: MuJoCo's warnings reset the world, a robot's own state that robot."""
+        reason = broken_warning(self.world.data)
+        if reason:
+            self.world.reset_time()
+            for robot in self.robots:
+                robot._physics_reset(reason)
+            return
+        for robot in self.robots:
+            reason = robot.sim.broken()
+            if reason:
+                robot._physics_reset(reason)
+
+    def run(self) -> None:
+        """Step every robot, publish each one's states and status, serve requests, until stopped.
+
+        The same schedule as SimService.run for one robot (service.py), over all robots at once.
+        """
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)  # why: service.py SimService.run
+        world, settings, clock, robots = self.world, self.settings, self.clock, self.robots
+        timestep = world.timestep_s
+        publish_every = max(1, round(1.0 / (settings.state_rate_hz * timestep)))
+        publish_period_s = 1.0 / settings.state_rate_hz
+        status_period_s = 1.0 / settings.status_rate_hz
+        wall_clock_states = settings.state_clock == "wall" or clock.paused
+        now = time.monotonic()
+        next_status = next_publish = now
+        with self.physics:
+            last_status_wall, last_status_sim = now, float(world.data.time)
+            for robot in robots:
+                robot._publish_states()
+        while not self.stop.is_set():
+            self._run_jobs()
+            if clock.paused:
+                time.sleep(PAUSED_POLL_S)
+                publish_due = wall_clock_states = True
+            else:
+                wall_clock_states = settings.state_clock == "wall"
+                if settings.rtf > 0:
+                    clock.pacer.wait()
+                    n = 1
+                elif wall_clock_states:
+                    n = FAST_BATCH_STEPS
+                else:
+                    n = publish_every - world.steps % publish_every
+                with self.physics:
+                    world.step(n)
+                    clock.pacer.stepped(n)
+                    publish_due = wall_clock_states or world.steps % publish_every == 0
+                    if publish_due:
+                        self._after_steps()
+            now = time.monotonic()
+            with self.physics:
+                if publish_due and (not wall_clock_states or now >= next_publish):
+                    next_publish = now + publish_period_s
+                    for robot in robots:
+                        robot._publish_states()
+                        if not clock.paused:
+                            robot._check_fall()
+                if now >= next_status:
+                    wall = now - last_status_wall
+                    rtf = (float(world.data.time) - last_status_sim) / wall if wall > 0 else 0.0
+                    for robot in robots:
+                        robot._publish_status(max(rtf, 0.0))
+                    last_status_wall, last_status_sim = now, float(world.data.time)
+                    next_status = now + status_period_s
+                self._last = self._take_reply_state()
+
+    def close(self) -> None:
+        for entity in self._declared:
+            entity.undeclare()
+        self.requests.close("the world is shutting down")
+        for robot in self.robots:
+            robot.close()
+
+
+def run_world(session: zenoh.Session, settings: SimSettings, stop: threading.Event, world: World) -> int:
+    """Serve `world` on the session until `stop` is set. Returns the exit code."""
+    for robot_id in (world.id, *world.sims):
+        owner = current_owner(session, Keys(robot_id))
+        if owner is not None:
+            raise StartupError(taken_message(robot_id, owner))
+    service = WorldService(session, settings, world, stop)
+    logger.info("world up on %s/world: %s", service.keys.root, ", ".join(f"zensim/{r}" for r in world.sims))
+    try:
+        service.run()
+    finally:
+        service.close()
+    logger.info("world stopped after %.1f sim s", float(world.data.time))
+    return 0
