@@ -64,7 +64,19 @@ def reset(robot: Robot, data: mujoco.MjData, q: np.ndarray | None = None, base_h
     data.qpos[robot.qpos_adr] = q_
     zeros = np.zeros(robot.nu)
     apply_motor_command(robot, data, q_, zeros, robot.kp, robot.kd, zeros)
+    if robot.slot is None:
+        mujoco.mj_forward(robot.model, data)
+        return
+    # In a world, mj_forward would also recompute the other robots' acceleration-stage figures (actuator
+    # torques, accelerometers) of this instant: they keep what they last published; only this robot moved.
+    torques, sensors = data.qfrc_actuator.copy(), data.sensordata.copy()
     mujoco.mj_forward(robot.model, data)
+    own_dof = robot.slot.dof
+    torques[own_dof] = data.qfrc_actuator[own_dof]
+    for own in robot.sensor_slices.values():
+        sensors[own] = data.sensordata[own]
+    data.qfrc_actuator[:] = torques
+    data.sensordata[:] = sensors
 
 
 def _reset_slot(robot: Robot, data: mujoco.MjData) -> None:

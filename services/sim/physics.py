@@ -209,7 +209,8 @@ class Simulation:
         self.steps = 0
         self.resets += 1
         self._apply(self._targets)
-        mujoco.mj_forward(self.robot.model, self.data)
+        if self.robot.slot is None:  # a robot of a world: mjdata.reset ran its own forward, the others untouched
+            mujoco.mj_forward(self.robot.model, self.data)
 
     def _pose_from(self, request: ResetRequest) -> np.ndarray:
         q = self.robot.default_q.copy()

@@ -50,6 +50,9 @@ from zensim.schemas import (
     Codec,
     CtlReply,
     DecodeError,
+    Imu,
+    JointState,
+    Odometry,
     Keys,
     Mode,
     ModeRequest,
@@ -458,10 +461,15 @@ class SimService:
         """(physics lock held) The current instant on state/joints, odom, imu."""
         self.seq += 1
         sim = self.sim
+        self._publish_messages(sim.joint_state(self.seq), sim.odometry(self.seq), sim.imu(self.seq))
+
+    def _publish_messages(self, joints: JointState, odom: Odometry, imu: Imu) -> None:
+        """(physics lock held) Put one instant's states, made by `_publish_states` or for a whole world at
+        once (world.py's StateReader), numbered `self.seq`."""
         self._snapshot = self._take_snapshot()
-        self.pub_joints.put(sim.joint_state(self.seq))
-        self.pub_odom.put(sim.odometry(self.seq))
-        self.pub_imu.put(sim.imu(self.seq))
+        self.pub_joints.put(joints)
+        self.pub_odom.put(odom)
+        self.pub_imu.put(imu)
 
     def _publish_status(self, rtf: float) -> None:
         """(physics lock held) SimStatus: it reads MjData (fallen, time)."""

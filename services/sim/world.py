@@ -28,6 +28,7 @@ from typing import Annotated
 
 import msgspec
 import mujoco
+import numpy as np
 import zenoh
 
 from zensim.common.claim import current_owner, taken_message
@@ -45,6 +46,9 @@ from zensim.schemas import (
     ResetRequest,
     ResumeRequest,
     StepRequest,
+    Imu,
+    JointState,
+    Odometry,
     bounded,
     is_json,
 )
@@ -52,7 +56,7 @@ from zensim.schemas.codec import Format
 from zensim.schemas.keys import check_robot_id
 from zensim.schemas.messages import Mode
 
-from .physics import Limits, Simulation, broken_warning
+from .physics import MAX_BASE_RISE_M, MAX_BASE_SPEED_M_S, Limits, Simulation, broken_warning
 from .requests import Request, Requests
 from .service import FAST_BATCH_STEPS, GIL_SWITCH_INTERVAL_S, PAUSED_POLL_S, PhysicsLock, SimService, WorldClock
 from .settings import SimSettings
@@ -136,6 +140,11 @@ class World:
             self.sims[entry.id] = Simulation(placement.files, robot.mode, limits, settings.watchdog_timeout_s,
                                              shared=(robot, self.data, self.step))
         self._sims = tuple(self.sims.values())
+        floating = [sim.robot for sim in self._sims if sim.robot.free_qpos_adr >= 0]
+        self._free = (np.array([r.free_qpos_adr for r in floating], int), np.array([r.free_dof_adr for r in floating], int),
+                      np.array([r.base_height_m + MAX_BASE_RISE_M for r in floating]))
+        """Free joints' qpos and dof addresses, and the highest sound base of each floating robot."""
+        self.reader = StateReader(self._sims)
         mujoco.mj_forward(self.model, self.data)
 
     @property
@@ -154,11 +163,67 @@ class World:
         for sim in sims:
             sim.steps += n
 
+    def broken_sims(self) -> list[Simulation]:
+        """(physics lock held) The robots whose state cannot be trusted (Simulation.broken), checked for all
+        robots at once first: only when something is off does each robot look at itself."""
+        data, free = self.data, self._free
+        sound = np.isfinite(data.qpos).all() and np.isfinite(data.qvel).all()
+        if sound and len(free[0]):
+            heights = data.qpos[free[0] + 2]
+            speeds = np.linalg.norm(data.qvel[free[1][:, None] + np.arange(3)], axis=1)
+            sound = bool((heights <= free[2]).all() and (speeds <= MAX_BASE_SPEED_M_S).all())
+        return [] if sound else [sim for sim in self._sims if sim.broken()]
+
     def reset_time(self) -> None:
         """(physics lock held) mj_resetData of the whole world: time 0, warnings cleared (robots reset next)."""
         mujoco.mj_resetData(self.model, self.data)
         self.steps = 0
         self.resets += 1
+
+
+class StateReader:
+    """Every robot's JointState, Odometry and Imu of one instant, read from the world's MjData in a few
+    array operations (one gather per field for all robots, then list slices), not three per robot.
+
+    The same figures as Simulation.joint_state / odometry / imu (the body-frame angular velocity is the
+    world one turned by the base's inverse orientation, here for all robots at once)."""
+
+    SENSORS = ("base_pos", "base_quat", "base_linvel", "base_angvel", "imu_quat", "imu_gyro", "imu_accel")
+
+    def __init__(self, sims: tuple[Simulation, ...]) -> None:
+        robots = [sim.robot for sim in sims]
+        self.qpos = np.concatenate([r.qpos_adr for r in robots])
+        self.dof = np.concatenate([r.dof_adr for r in robots])
+        ends = np.cumsum([r.nu for r in robots])
+        self.spans = list(zip([0, *ends[:-1].tolist()], ends.tolist()))
+        self.sensors = {name: np.stack([np.arange(r.sensor_slices[name].start, r.sensor_slices[name].stop)
+                                        for r in robots]) for name in self.SENSORS}
+
+    def read(self, data: mujoco.MjData, seqs: list[int]) -> list[tuple[JointState, Odometry, Imu]]:
+        t = float(data.time)
+        q, dq, tau = (data.qpos[self.qpos].tolist(), data.qvel[self.dof].tolist(),
+                      data.qfrc_actuator[self.dof].tolist())
+        sensordata = data.sensordata
+        s = {name: sensordata[idx] for name, idx in self.sensors.items()}
+        quat = s["base_quat"]
+        ang_body = _rotate_by_inverse(quat, s["base_angvel"])
+        pos, quat_l, lin, ang = s["base_pos"].tolist(), quat.tolist(), s["base_linvel"].tolist(), ang_body.tolist()
+        imu_quat, gyro, accel = s["imu_quat"].tolist(), s["imu_gyro"].tolist(), s["imu_accel"].tolist()
+        out = []
+        for i, ((a, b), seq) in enumerate(zip(self.spans, seqs)):
+            out.append((JointState(sim_time_s=t, seq=seq, q=q[a:b], dq=dq[a:b], tau=tau[a:b]),
+                        Odometry(sim_time_s=t, seq=seq, pos=pos[i], quat_wxyz=quat_l[i], lin_vel_world=lin[i],
+                                 ang_vel_body=ang[i]),
+                        Imu(sim_time_s=t, seq=seq, quat_wxyz=imu_quat[i], gyro=gyro[i], accel=accel[i])))
+        return out
+
+
+def _rotate_by_inverse(quat_wxyz: np.ndarray, vec: np.ndarray) -> np.ndarray:
+    """Each row of `vec` turned by the inverse of each unit quaternion (as mju_rotVecQuat with the conjugate)."""
+    w = quat_wxyz[:, :1]
+    u = -quat_wxyz[:, 1:]
+    t = 2.0 * np.cross(u, vec)
+    return vec + w * t + np.cross(u, t)
 
 
 def load_world(settings: SimSettings) -> World:
@@ -189,6 +254,7 @@ class WorldService:
                        world=(self.clock, self.physics))
             for robot_id, sim in world.sims.items()
         ]
+        self._by_sim = {id(robot.sim): robot for robot in self.robots}
         self.refusals = Refusals(logger, "world request")
         self.requests = Requests(lambda reason: self._reply(ok=False, error=reason))
         self.reply_codec = Codec(CtlReply)
@@ -253,8 +319,7 @@ class WorldService:
             return self._reply(ok=False, error="world/step works while paused; send world/pause first")
         self.world.step(request.n)
         self._after_steps()
-        for robot in self.robots:
-            robot._publish_states()
+        self._publish_states()
         return self._take_reply_state()
 
     def _reset(self, request: ResetRequest) -> CtlReply:
@@ -267,6 +332,14 @@ class WorldService:
         self.clock.pacer = Pacer(self.world.timestep_s, self.settings.rtf)
         logger.info("world reset")
         return self._take_reply_state()
+
+    def _publish_states(self) -> None:
+        """(physics lock held) Every robot's states of this instant (one read of MjData for all)."""
+        robots = self.robots
+        for robot in robots:
+            robot.seq += 1
+        for robot, (joints, odom, imu) in zip(robots, self.world.reader.read(self.world.data, [r.seq for r in robots])):
+            robot._publish_messages(joints, odom, imu)
 
     def _run_request(self, request: Request) -> CtlReply:
         with self.physics:
@@ -295,8 +368,9 @@ class WorldService:
             for robot in self.robots:
                 robot._physics_reset(reason)
             return
-        for robot in self.robots:
-            reason = robot.sim.broken()
+        for sim in self.world.broken_sims():
+            robot = self._by_sim[id(sim)]
+            reason = sim.broken()
             if reason:
                 robot._physics_reset(reason)
 
@@ -316,8 +390,7 @@ class WorldService:
         next_status = next_publish = now
         with self.physics:
             last_status_wall, last_status_sim = now, float(world.data.time)
-            for robot in robots:
-                robot._publish_states()
+            self._publish_states()
         while not self.stop.is_set():
             self._run_jobs()
             if clock.paused:
@@ -342,9 +415,9 @@ class WorldService:
             with self.physics:
                 if publish_due and (not wall_clock_states or now >= next_publish):
                     next_publish = now + publish_period_s
-                    for robot in robots:
-                        robot._publish_states()
-                        if not clock.paused:
+                    self._publish_states()
+                    if not clock.paused:
+                        for robot in robots:
                             robot._check_fall()
                 if now >= next_status:
                     wall = now - last_status_wall
