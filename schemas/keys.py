@@ -63,6 +63,7 @@ class Keys:
     world_resume: str
     world_step: str
     world_reset: str
+    world_advance: str
     robot_info: str
     urdf: str
     mesh_any: str

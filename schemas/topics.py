@@ -20,6 +20,8 @@ from typing import Final, Generic, Literal, TypeVar
 
 from .messages import (
     AdvanceReply,
+    WorldAdvanceReply,
+    WorldAdvanceRequest,
     AppliedCommand,
     BridgeReport,
     CtlReply,
@@ -172,6 +174,9 @@ WORLD_RESUME: Final = Topic("world/resume", "queryable", "any client", "sim (a w
                             CtlReply, note=WORLD_NOTE, name="world_resume")
 WORLD_STEP: Final = Topic("world/step", "queryable", "any client", "sim (a world)", "on demand, while paused",
                           StepRequest, CtlReply, note=WORLD_NOTE, name="world_step")
+WORLD_ADVANCE: Final = Topic("world/advance", "queryable", "any client (a controller of several robots)",
+                             "sim (a world, `--clock lockstep`)", "on demand", WorldAdvanceRequest, WorldAdvanceReply,
+                             note=WORLD_NOTE, name="world_advance")
 WORLD_RESET: Final = Topic("world/reset", "queryable", "any client", "sim (a world)", "on demand", ResetRequest,
                            CtlReply, note="(every robot to its default pose, world time to 0: an empty request)",
                            name="world_reset")
@@ -194,7 +199,7 @@ TOPICS: Final[tuple[Topic, ...]] = (
     JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
-    WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET,
+    WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE,
     ROBOT_INFO, URDF, MESH, ALIVE, ROUTER_ALIVE,
 )
 """Every topic, in the order the docs list them."""

@@ -108,5 +108,3 @@ def test_bad_world_files_are_refused_with_the_reason(tmp_path: Path) -> None:
         path.write_text(text)
         with pytest.raises(StartupError, match=reason):
             read_world_file(str(path))
-    with pytest.raises(StartupError, match="lockstep"):
-        load_world(SimSettings(world=str(path), clock="lockstep"))

@@ -273,6 +273,30 @@ class Simulation:
             CommandError: unknown joints, wrong vector length, gains out of bounds.
         """
         robot = self.robot
+        idx, clipped, kp, kd, n_clamped = self._checked(command)
+        with self._lock:
+            if robot is not self.robot:  # the model was rebuilt meanwhile
+                raise CommandError("the model changed while the command was checked; send it again")
+            base = self._targets
+            new = MotorTargets(base.q.copy(), base.dq.copy(), base.kp.copy(), base.kd.copy(), base.tau.copy())
+            new.q[idx] = clipped
+            new.dq[idx] = 0.0 if command.dq is None else command.dq
+            new.kp[idx] = kp
+            new.kd[idx] = kd
+            new.tau[idx] = 0.0 if command.tau is None else command.tau
+            self._targets = new
+            self._last_command_wall = time.monotonic()
+            if n_clamped:
+                self.clamped += 1
+        return n_clamped
+
+    def check_command(self, command: MotorCommand) -> None:
+        """Raise CommandError when `command` does not fit the robot; change nothing (accept_command's checks)."""
+        self._checked(command)
+
+    def _checked(self, command: MotorCommand) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+        """The joints a command addresses, its targets clamped to the joint limits, gains, and how many were clamped."""
+        robot = self.robot
         if command.names is None:
             if len(command.q) != robot.nu:
                 raise CommandError(f"`q` has {len(command.q)} values, the robot has {robot.nu} joints")
@@ -295,21 +319,7 @@ class Simulation:
                               f"{TAU_LIMIT_FACTOR:g} x the effort limit")
         clipped = np.clip(q, robot.q_min[idx], robot.q_max[idx])
         n_clamped = int(np.count_nonzero(clipped != q))
-        with self._lock:
-            if robot is not self.robot:  # the model was rebuilt meanwhile
-                raise CommandError("the model changed while the command was checked; send it again")
-            base = self._targets
-            new = MotorTargets(base.q.copy(), base.dq.copy(), base.kp.copy(), base.kd.copy(), base.tau.copy())
-            new.q[idx] = clipped
-            new.dq[idx] = 0.0 if command.dq is None else command.dq
-            new.kp[idx] = kp
-            new.kd[idx] = kd
-            new.tau[idx] = 0.0 if command.tau is None else command.tau
-            self._targets = new
-            self._last_command_wall = time.monotonic()
-            if n_clamped:
-                self.clamped += 1
-        return n_clamped
+        return idx, clipped, kp, kd, n_clamped
 
     def reject(self, reason: str) -> None:
         """Count a rejected command (decode or validation failure); any thread."""

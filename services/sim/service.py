@@ -193,7 +193,7 @@ class SimService:
         self.pub_imu = TypedPublisher.of(session, keys, topics.IMU)
         self.pub_status = TypedPublisher.of(session, keys, topics.SIM_STATUS)
         self.lockstep = None
-        if settings.clock == "lockstep":
+        if settings.clock == "lockstep" and world is None:  # a world's lockstep is world/advance (world.py)
             from .lockstep import Lockstep  # imported here: lockstep.py builds on this module
 
             self.lockstep = Lockstep(self)

@@ -34,7 +34,8 @@ import zenoh
 from zensim.common.claim import current_owner, taken_message
 from zensim.common.pacing import Pacer
 from zensim.common.session import StartupError
-from zensim.common.wire import Refusals, decode_input, payload_of, reply
+from zensim.common.wire import Refusals, decode_input, payload_of
+from zensim.common.wire import reply as send
 from zensim.robots import robot_files
 from zensim.robots.builder import Placement, build_world
 from zensim.schemas import (
@@ -49,14 +50,18 @@ from zensim.schemas import (
     Imu,
     JointState,
     Odometry,
+    RobotStates,
+    WorldAdvanceReply,
+    WorldAdvanceRequest,
     bounded,
     is_json,
 )
+from zensim.schemas.bounds import vector_cap_bytes
 from zensim.schemas.codec import Format
 from zensim.schemas.keys import check_robot_id
 from zensim.schemas.messages import Mode
 
-from .physics import MAX_BASE_RISE_M, MAX_BASE_SPEED_M_S, Limits, Simulation, broken_warning
+from .physics import MAX_BASE_RISE_M, CommandError, MAX_BASE_SPEED_M_S, Limits, Simulation, broken_warning
 from .requests import Request, Requests
 from .service import FAST_BATCH_STEPS, GIL_SWITCH_INTERVAL_S, PAUSED_POLL_S, PhysicsLock, SimService, WorldClock
 from .settings import SimSettings
@@ -140,6 +145,8 @@ class World:
             self.sims[entry.id] = Simulation(placement.files, robot.mode, limits, settings.watchdog_timeout_s,
                                              shared=(robot, self.data, self.step))
         self._sims = tuple(self.sims.values())
+        for sim in self._sims:  # lockstep: time stands still between advances, so silence is no fault
+            sim.watchdog_enabled = settings.clock == "realtime"
         floating = [sim.robot for sim in self._sims if sim.robot.free_qpos_adr >= 0]
         self._free = (np.array([r.free_qpos_adr for r in floating], int), np.array([r.free_dof_adr for r in floating], int),
                       np.array([r.base_height_m + MAX_BASE_RISE_M for r in floating]))
@@ -229,8 +236,6 @@ def _rotate_by_inverse(quat_wxyz: np.ndarray, vec: np.ndarray) -> np.ndarray:
 def load_world(settings: SimSettings) -> World:
     """Read the world file the settings name and build it (before the session: a bad file fails fast)."""
     assert settings.world is not None
-    if settings.clock != "realtime":
-        raise StartupError("a world runs --clock realtime for now (lockstep serves one robot)")
     world_file = read_world_file(settings.world)
     world = World(world_file, Path(settings.world).resolve().parent, settings)
     logger.info("world %s: %d robots (%s), %d bodies, mode %s, step %.4f s", world.id, len(world.sims),
@@ -256,6 +261,9 @@ class WorldService:
         ]
         self._by_sim = {id(robot.sim): robot for robot in self.robots}
         self.refusals = Refusals(logger, "world request")
+        self.lockstep = settings.clock == "lockstep"
+        self.advance_cap_bytes = WORLD_INPUT_CAP_BYTES + sum(vector_cap_bytes(sim.robot.joint_names)
+                                                             for sim in world.sims.values())
         self.requests = Requests(lambda reason: self._reply(ok=False, error=reason))
         self.reply_codec = Codec(CtlReply)
         self._last = self._take_reply_state()
@@ -265,23 +273,33 @@ class WorldService:
             session.declare_queryable(keys.world_resume, self._verb(keys.world_resume, ResumeRequest, self._resume)),
             session.declare_queryable(keys.world_step, self._verb(keys.world_step, StepRequest, self._step)),
             session.declare_queryable(keys.world_reset, self._verb(keys.world_reset, ResetRequest, self._reset)),
+            session.declare_queryable(keys.world_advance, self._verb(keys.world_advance, WorldAdvanceRequest,
+                                                                     self._advance, self.advance_cap_bytes)),
         ]
 
     # --- the world's verbs ---------------------------------------------------------------------
 
-    def _verb(self, own_key: str, request_type: type, handler: Callable) -> Callable[[zenoh.Query], None]:
+    def _verb(self, own_key: str, request_type: type, handler: Callable,
+              cap_bytes: int = WORLD_INPUT_CAP_BYTES) -> Callable[[zenoh.Query], None]:
         codec = Codec(request_type)
+        advance = request_type is WorldAdvanceRequest
+
+        def reply(query: zenoh.Query, key: str, message: CtlReply | WorldAdvanceReply, fmt: Format, _codec: Codec) -> None:
+            if advance and isinstance(message, CtlReply):  # a refusal made before the request ran
+                message = WorldAdvanceReply(ok=False, error=message.error, sim_time_s=message.sim_time_s,
+                                            steps=message.steps)
+            send(query, key, message, fmt, _codec)
 
         def on_query(query: zenoh.Query) -> None:
             payload = query.payload
-            fmt: Format = ("json" if payload is None or len(payload) > WORLD_INPUT_CAP_BYTES
+            fmt: Format = ("json" if payload is None or len(payload) > cap_bytes
                            or is_json(*payload_of(query)) else "msgpack")
             if str(query.key_expr) != own_key:
                 error = self.refusals.refuse(query.key_expr, f"acts only on a query for exactly {own_key}; nothing was done")
                 reply(query, own_key, self._reply(ok=False, error=error), fmt, self.reply_codec)
                 return
             try:
-                request = decode_input(query, codec, WORLD_INPUT_CAP_BYTES)
+                request = decode_input(query, codec, cap_bytes)
             except DecodeError as exc:
                 reply(query, own_key, self._reply(ok=False, error=self.refusals.refuse(query.key_expr, str(exc))),
                       fmt, self.reply_codec)
@@ -333,13 +351,39 @@ class WorldService:
         logger.info("world reset")
         return self._take_reply_state()
 
-    def _publish_states(self) -> None:
-        """(physics lock held) Every robot's states of this instant (one read of MjData for all)."""
+    def _publish_states(self) -> list[tuple[JointState, Odometry, Imu]]:
+        """(physics lock held) Every robot's states of this instant (one read of MjData for all); returns them."""
         robots = self.robots
         for robot in robots:
             robot.seq += 1
-        for robot, (joints, odom, imu) in zip(robots, self.world.reader.read(self.world.data, [r.seq for r in robots])):
+        states = self.world.reader.read(self.world.data, [r.seq for r in robots])
+        for robot, (joints, odom, imu) in zip(robots, states):
             robot._publish_messages(joints, odom, imu)
+        return states
+
+    def _advance(self, request: WorldAdvanceRequest) -> WorldAdvanceReply | CtlReply:
+        """(loop thread, physics lock held) Every command checked first, then all applied, then one advance."""
+        if not self.lockstep:
+            return self._reply(ok=False, error="world/advance works under --clock lockstep; this world runs in real time")
+        if self.clock.paused:
+            return self._reply(ok=False, error="paused: send world/resume (or world/step to step by hand)")
+        sims = self.world.sims
+        unknown = [robot for robot in request.commands if robot not in sims]
+        if unknown:
+            return self._reply(ok=False, error=bounded(f"no robot {unknown[0]!r} in this world; robots: {', '.join(sims)}"))
+        for robot, command in request.commands.items():
+            try:
+                sims[robot].check_command(command)
+            except CommandError as exc:
+                return self._reply(ok=False, error=bounded(f"robot {robot}: {exc}; nothing was applied"))
+        for robot, command in request.commands.items():
+            sims[robot].accept_command(command)
+        self.world.step(self.settings.lockstep_steps)
+        self._after_steps()
+        states = self._publish_states()
+        return WorldAdvanceReply(ok=True, sim_time_s=float(self.world.data.time), steps=self.world.steps,
+                                 states={robot.keys.robot: RobotStates(joints=j, odom=o, imu=i)
+                                         for robot, (j, o, i) in zip(self.robots, states)})
 
     def _run_request(self, request: Request) -> CtlReply:
         with self.physics:
@@ -393,7 +437,10 @@ class WorldService:
             self._publish_states()
         while not self.stop.is_set():
             self._run_jobs()
-            if clock.paused:
+            if self.lockstep:  # time moves only by world/advance (and world/step while paused): wait for one
+                self.requests.run_next(PAUSED_POLL_S, self._run_request)
+                publish_due, wall_clock_states = clock.paused, True
+            elif clock.paused:
                 time.sleep(PAUSED_POLL_S)
                 publish_due = wall_clock_states = True
             else:
