@@ -7,7 +7,10 @@ commands, as a controller would send them). Reported per setup:
 - worst 1 s RTF: the smallest sim-time advance over any 1 s of wall time, per robot, worst robot
   (from each robot's SimStatus, 10 Hz; arrival time at the client);
 - states: state/joints delivered to the client per robot per second (min and mean over robots);
-- sim CPU: cores the sim process(es) used (user + system time / wall time).
+- mean RTF: sim time over the whole run per wall second (slowest robot);
+- sim CPU: cores the sim process(es) used (user + system time / wall time), and per real-time
+  second (CPU / mean RTF: what N robots cost, less dependent on how busy the shared machine is);
+- the 1-minute load average at the end of the run (the machine is shared).
 
     .venv/bin/python benchmarks/many_robots.py --counts 1,4,8,16,32 --seconds 6
 
@@ -83,6 +86,15 @@ class Watcher:
                 worst = min(worst, (sim1 - sim0) / (t1 - t0))
         return worst
 
+    def mean_rtf(self, start: float, end: float) -> float:
+        """Sim-time advance over the whole of [start, end] per wall second, slowest robot."""
+        rates = []
+        for samples in self.status.values():
+            inside = [s for s in samples if start <= s[0] <= end]
+            if len(inside) >= 2:
+                rates.append((inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0]))
+        return min(rates) if rates else math.nan
+
     def close(self) -> None:
         for sub in self._subs:
             sub.undeclare()
@@ -151,7 +163,8 @@ def measure(setup: str, n: int, seconds: float, endpoint: str, session: zenoh.Se
         end = time.monotonic()
         cpu = (sum(cpu_s(s.pid) for s in sims) - cpu0) / (end - start)
         rates = [watcher.counts[i] / (end - start) for i in ids]
-        return {"rtf": watcher.worst_rtf(start, end), "rate_min": min(rates), "rate_mean": sum(rates) / n, "cpu": cpu}
+        return {"rtf": watcher.worst_rtf(start, end), "mean_rtf": watcher.mean_rtf(start, end), "rate_min": min(rates),
+                "rate_mean": sum(rates) / n, "cpu": cpu, "load": os.getloadavg()[0]}
     finally:
         if commander is not None:
             commander.stop()
@@ -178,8 +191,9 @@ def main() -> None:
         with plain_client(endpoint) as session:
             print(f"{os.cpu_count()} cores; {args.seconds:g} s per run; commands at {COMMAND_HZ:g} Hz per robot: "
                   f"{not args.no_commands}")
-            print("| G1s | setup | worst 1 s RTF | states/robot/s min (mean) | sim CPU, cores |")
-            print("|---|---|---|---|---|")
+            print("| G1s | setup | worst 1 s RTF | mean RTF | states/robot/s min (mean) | sim CPU, cores "
+                  "| cores per real-time s | load avg |")
+            print("|---|---|---|---|---|---|---|---|")
             for n in counts:
                 for setup in ("world", "procs"):
                     if args.only and setup != args.only:
@@ -191,8 +205,9 @@ def main() -> None:
                     if r is None:
                         print(f"| {n} | {setup} | failed | | |", flush=True)
                         continue
-                    print(f"| {n} | {setup} | {r['rtf']:.3f} | {r['rate_min']:.1f} ({r['rate_mean']:.1f}) | "
-                          f"{r['cpu']:.2f} |", flush=True)
+                    print(f"| {n} | {setup} | {r['rtf']:.3f} | {r['mean_rtf']:.3f} | {r['rate_min']:.1f} "
+                          f"({r['rate_mean']:.1f}) | {r['cpu']:.2f} | {r['cpu'] / r['mean_rtf']:.2f} | {r['load']:.1f} |",
+                          flush=True)
     finally:
         routers.stop_all()
 

@@ -38,6 +38,7 @@ conf = zenoh.Config()
 conf.insert_json5("mode", '"client"')
 conf.insert_json5("connect/endpoints", '["%(endpoint)s"]')
 conf.insert_json5("scouting/multicast/enabled", "false")
+conf.insert_json5("connect/timeout_ms", "-1")
 replies = {}
 def on_query(q):
     size = int(str(q.parameters).split("=")[1])
