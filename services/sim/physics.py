@@ -22,6 +22,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -74,6 +75,20 @@ BROKEN_PHYSICS_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADCTRL,
 )
 """MuJoCo's own guards: when one fires it has already zeroed the controls or reset mjData."""
+
+
+class Checked(NamedTuple):
+    """A command checked against one build of the robot (Simulation.check_command)."""
+
+    robot: Robot
+    idx: np.ndarray
+    """The joints it addresses, canonical indices."""
+    q: np.ndarray
+    """Its targets, clamped to the joint limits."""
+    kp: np.ndarray
+    kd: np.ndarray
+    clamped: int
+    """How many targets were clamped."""
 
 
 class CommandError(ValueError):
@@ -260,7 +275,7 @@ class Simulation:
             raise CommandError(f"unknown joint(s): {shown}{more}")
         return np.fromiter((self._index[name] for name in names), int, len(names))
 
-    def accept_command(self, command: MotorCommand) -> int:
+    def accept_command(self, command: MotorCommand, checked: Checked | None = None) -> int:
         """Validate `command` against the robot and make it the one applied from the next step on.
 
         A partial command (with `names`) changes only those joints. Nothing is
@@ -273,7 +288,9 @@ class Simulation:
             CommandError: unknown joints, wrong vector length, gains out of bounds.
         """
         robot = self.robot
-        idx, clipped, kp, kd, n_clamped = self._checked(command)
+        if checked is None or checked.robot is not robot:  # unchecked, or checked against a model since rebuilt
+            checked = self._checked(command)
+        idx, clipped, kp, kd, n_clamped = checked.idx, checked.q, checked.kp, checked.kd, checked.clamped
         with self._lock:
             if robot is not self.robot:  # the model was rebuilt meanwhile
                 raise CommandError("the model changed while the command was checked; send it again")
@@ -290,12 +307,15 @@ class Simulation:
                 self.clamped += 1
         return n_clamped
 
-    def check_command(self, command: MotorCommand) -> None:
-        """Raise CommandError when `command` does not fit the robot; change nothing (accept_command's checks)."""
-        self._checked(command)
+    def check_command(self, command: MotorCommand) -> Checked:
+        """accept_command's checks alone: raise CommandError when `command` does not fit the robot, change
+        nothing; the result, given to accept_command, spares it checking again (world.py checks every
+        robot's command before it applies any)."""
+        return self._checked(command)
 
-    def _checked(self, command: MotorCommand) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-        """The joints a command addresses, its targets clamped to the joint limits, gains, and how many were clamped."""
+    def _checked(self, command: MotorCommand) -> Checked:
+        """The robot checked against, the joints a command addresses, its targets clamped to the joint
+        limits, its gains, and how many targets were clamped."""
         robot = self.robot
         if command.names is None:
             if len(command.q) != robot.nu:
@@ -319,7 +339,7 @@ class Simulation:
                               f"{TAU_LIMIT_FACTOR:g} x the effort limit")
         clipped = np.clip(q, robot.q_min[idx], robot.q_max[idx])
         n_clamped = int(np.count_nonzero(clipped != q))
-        return idx, clipped, kp, kd, n_clamped
+        return Checked(robot, idx, clipped, kp, kd, n_clamped)
 
     def reject(self, reason: str) -> None:
         """Count a rejected command (decode or validation failure); any thread."""

@@ -371,13 +371,14 @@ class WorldService:
         unknown = [robot for robot in request.commands if robot not in sims]
         if unknown:
             return self._reply(ok=False, error=bounded(f"no robot {unknown[0]!r} in this world; robots: {', '.join(sims)}"))
+        checked = {}
         for robot, command in request.commands.items():
             try:
-                sims[robot].check_command(command)
+                checked[robot] = sims[robot].check_command(command)
             except CommandError as exc:
                 return self._reply(ok=False, error=bounded(f"robot {robot}: {exc}; nothing was applied"))
         for robot, command in request.commands.items():
-            sims[robot].accept_command(command)
+            sims[robot].accept_command(command, checked[robot])
         self.world.step(self.settings.lockstep_steps)
         self._after_steps()
         states = self._publish_states()
