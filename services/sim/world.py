@@ -260,6 +260,8 @@ class WorldService:
             for robot_id, sim in world.sims.items()
         ]
         self._by_sim = {id(robot.sim): robot for robot in self.robots}
+        self._unpublished: list[tuple[JointState, Odometry, Imu]] | None = None
+        """States an advance read, put once its client has the reply (physics lock held)."""
         self.refusals = Refusals(logger, "world request")
         self.lockstep = settings.clock == "lockstep"
         self.advance_cap_bytes = WORLD_INPUT_CAP_BYTES + sum(vector_cap_bytes(sim.robot.joint_names)
@@ -310,6 +312,22 @@ class WorldService:
                     self.refusals.refuse(query.key_expr, message.error or "refused")
                 reply(query, own_key, message, fmt, self.reply_codec)
 
+            if advance:
+                # As ctl/advance of a robot alone (lockstep.py): stepped on this thread, under the physics
+                # lock, answered first and then published; no hand-over to the loop thread on the way.
+                with self.physics:
+                    self._unpublished = None
+                    try:
+                        message = handler(request)
+                    except Exception as exc:  # a failed advance must not leave the client without an answer
+                        logger.exception("world/advance failed")
+                        message = self._reply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}"))
+                    answer(query, message)
+                    query.drop()
+                    if self._unpublished is not None:
+                        self._put_states(self._unpublished)
+                    self._last = self._take_reply_state()
+                return
             self.requests.submit(Request(query, lambda: handler(request), answer))
 
         return on_query
@@ -351,18 +369,24 @@ class WorldService:
         logger.info("world reset")
         return self._take_reply_state()
 
-    def _publish_states(self) -> list[tuple[JointState, Odometry, Imu]]:
-        """(physics lock held) Every robot's states of this instant (one read of MjData for all); returns them."""
+    def _publish_states(self) -> None:
+        """(physics lock held) Every robot's states of this instant (one read of MjData for all)."""
+        self._put_states(self._read_states())
+
+    def _read_states(self) -> list[tuple[JointState, Odometry, Imu]]:
+        """(physics lock held) Every robot's next-numbered states of this instant, not yet published."""
         robots = self.robots
         for robot in robots:
             robot.seq += 1
-        states = self.world.reader.read(self.world.data, [r.seq for r in robots])
-        for robot, (joints, odom, imu) in zip(robots, states):
+        return self.world.reader.read(self.world.data, [r.seq for r in robots])
+
+    def _put_states(self, states: list[tuple[JointState, Odometry, Imu]]) -> None:
+        """(physics lock held) Publish what _read_states read, on each robot's keys."""
+        for robot, (joints, odom, imu) in zip(self.robots, states):
             robot._publish_messages(joints, odom, imu)
-        return states
 
     def _advance(self, request: WorldAdvanceRequest) -> WorldAdvanceReply | CtlReply:
-        """(loop thread, physics lock held) Every command checked first, then all applied, then one advance."""
+        """(physics lock held, on the query's thread) Every command checked first, then all applied, then one advance."""
         if not self.lockstep:
             return self._reply(ok=False, error="world/advance works under --clock lockstep; this world runs in real time")
         if self.clock.paused:
@@ -381,7 +405,7 @@ class WorldService:
             sims[robot].accept_command(command, checked[robot])
         self.world.step(self.settings.lockstep_steps)
         self._after_steps()
-        states = self._publish_states()
+        states = self._unpublished = self._read_states()  # published once the client has its reply
         return WorldAdvanceReply(ok=True, sim_time_s=float(self.world.data.time), steps=self.world.steps,
                                  states={robot.keys.robot: RobotStates(joints=j, odom=o, imu=i)
                                          for robot, (j, o, i) in zip(self.robots, states)})
