@@ -59,7 +59,7 @@ from zensim.schemas import (
 from zensim.schemas.bounds import vector_cap_bytes
 from zensim.schemas.codec import Format
 from zensim.schemas.keys import check_robot_id
-from zensim.schemas.messages import Mode
+from zensim.schemas.messages import Message, Mode
 
 from .physics import MAX_BASE_RISE_M, CommandError, MAX_BASE_SPEED_M_S, Limits, Simulation, broken_warning
 from .requests import Request, Requests
@@ -283,7 +283,7 @@ class WorldService:
 
     def _verb(self, own_key: str, request_type: type, handler: Callable,
               cap_bytes: int = WORLD_INPUT_CAP_BYTES) -> Callable[[zenoh.Query], None]:
-        codec = Codec(request_type)
+        codec: Codec[Message] = Codec(request_type)
         advance = request_type is WorldAdvanceRequest
 
         def reply(query: zenoh.Query, key: str, message: CtlReply | WorldAdvanceReply, fmt: Format, _codec: Codec) -> None:
