@@ -28,7 +28,7 @@ from zensim.robots.control import DEFAULT_ARMATURE_KG_M2, ControlConfig, ModeCon
 from zensim.robots.description import Description, Joint, RobotModelError, parse_urdf
 from zensim.robots.mesh_files import resolve_mesh
 
-__all__ = ["MODES", "Robot", "RobotModelError", "build", "mjcf_xml", "place_base"]
+__all__ = ["MODES", "Placement", "Robot", "RobotModelError", "build", "build_world", "mjcf_xml", "place_base"]
 
 logger = logging.getLogger(__name__)
 
@@ -105,11 +105,39 @@ class Robot:
     """Rotor armature per joint, kg m^2, canonical order."""
     control_path: Path | None = None
     """The control file used, None for defaults."""
+    spawn_xy: tuple[float, float] = (0.0, 0.0)
+    """Where the base stands in the world's x, y, m (a robot of a world; 0, 0 alone)."""
+    spawn_yaw_rad: float = 0.0
+    """Heading of the base at spawn, rad about the world's z."""
+    slot: WorldSlot | None = None
+    """Where this robot lies in a model it shares with other robots (build_world); None: it owns the model."""
 
     @property
     def nu(self) -> int:
         """Number of actuated joints."""
         return len(self.joint_names)
+
+
+@dataclass(frozen=True)
+class Placement:
+    """One robot of a world: its name prefix in the shared model, its files and where it spawns."""
+
+    prefix: str
+    files: RobotFiles
+    xy: tuple[float, float] = (0.0, 0.0)
+    yaw_rad: float = 0.0
+    mode: Mode | None = None
+    """This robot's mode (a fixed robot stands welded on its stand in the world); None: the world's."""
+
+
+@dataclass(frozen=True)
+class WorldSlot:
+    """The ranges of a shared model's arrays that belong to one robot (contiguous: attached in turn)."""
+
+    qpos: slice
+    dof: slice
+    bodies: slice
+    actuators: slice
 
 
 # ------------------------------------------------------------------------------------- resolution
@@ -277,12 +305,13 @@ def _compile(prepared: _Prepared, files: RobotFiles) -> mujoco.MjModel:
         raise RobotModelError(f"MuJoCo could not compile {files.urdf}: {exc}") from exc
 
 
-def _lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData) -> float:
-    """Lowest z over the robot's collision geoms' bounding boxes (floor excluded)."""
+def _lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData, slot: WorldSlot | None = None) -> float:
+    """Lowest z over the robot's collision geoms' bounding boxes (floor excluded; in a world, its own geoms)."""
     lowest = math.inf
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
     for g in range(model.ngeom):
-        if model.geom_bodyid[g] == 0:
+        body = int(model.geom_bodyid[g])
+        if body == 0 or (slot is not None and not slot.bodies.start <= body < slot.bodies.stop):
             continue
         centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
         corners = centre + signs * half
@@ -309,18 +338,30 @@ def build(files: RobotFiles, mode: Mode) -> Robot:
     """
     prepared = _prepare(files, mode)
     model = _compile(prepared, files)
+    robot = _robot_from(prepared, model, files, mode)
+    _place_spawn(robot)
+    return robot
+
+
+def _robot_from(prepared: _Prepared, model: mujoco.MjModel, files: RobotFiles, mode: Mode, prefix: str = "",
+                slot: WorldSlot | None = None) -> Robot:
+    """A Robot over `model`, whose elements of this robot carry `prefix` (build_world) or none (build)."""
     info, joints, cfg = prepared.info, prepared.joints, prepared.control
     names = tuple(j.name for j in joints)
-    jids = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names])
-    base_body_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, prepared.base_link)
-    free_jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, FREE_JOINT_NAME)
+
+    def find(kind: mujoco.mjtObj, name: str) -> int:
+        return mujoco.mj_name2id(model, kind, prefix + name)
+
+    jids = np.array([find(mujoco.mjtObj.mjOBJ_JOINT, n) for n in names])
+    base_body_id = find(mujoco.mjtObj.mjOBJ_BODY, prepared.base_link)
+    free_jid = find(mujoco.mjtObj.mjOBJ_JOINT, FREE_JOINT_NAME)
     sensor_slices = {}
     for name in _SENSORS:
-        sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
+        sid = find(mujoco.mjtObj.mjOBJ_SENSOR, name)
         adr = int(model.sensor_adr[sid])
         sensor_slices[name] = slice(adr, adr + int(model.sensor_dim[sid]))
 
-    robot = Robot(
+    return Robot(
         model=model,
         mode=mode,
         name=info.name,
@@ -335,20 +376,26 @@ def build(files: RobotFiles, mode: Mode) -> Robot:
         base_height_m=0.0,
         qpos_adr=model.jnt_qposadr[jids].copy(),
         dof_adr=model.jnt_dofadr[jids].copy(),
-        actuator_ids=np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in names]),
+        actuator_ids=np.array([find(mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in names]),
         base_body_id=base_body_id,
         control=cfg,
         urdf_path=files.urdf,
         urdf_text=prepared.text,
         mesh_files=prepared.mesh_files,
         base_link=prepared.base_link,
-        imu_site_id=mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, cfg.model.imu_site),
+        imu_site_id=find(mujoco.mjtObj.mjOBJ_SITE, cfg.model.imu_site),
         free_qpos_adr=int(model.jnt_qposadr[free_jid]) if free_jid >= 0 else -1,
         free_dof_adr=int(model.jnt_dofadr[free_jid]) if free_jid >= 0 else -1,
         sensor_slices=sensor_slices,
         armature=prepared.armature,
         control_path=files.control,
+        slot=slot,
     )
+
+
+def _place_spawn(robot: Robot) -> None:
+    """Settle the spawn height (the control file's, else derived from the model) and put the base there."""
+    model, mode, cfg = robot.model, robot.mode, robot.control
     height = getattr(cfg, mode).base_height_m
     if height is None:
         # No height in the control file: stand (or hang) just above the floor in the default pose.
@@ -356,16 +403,96 @@ def build(files: RobotFiles, mode: Mode) -> Robot:
         data.qpos[robot.qpos_adr] = robot.default_q
         if robot.free_qpos_adr >= 0:
             data.qpos[robot.free_qpos_adr:robot.free_qpos_adr + 3] = 0.0
-        model.body_pos[base_body_id] = 0.0
+        saved = model.body_pos[robot.base_body_id].copy()
+        model.body_pos[robot.base_body_id] = 0.0
         mujoco.mj_kinematics(model, data)
-        lowest = _lowest_point_z(model, data)
+        lowest = _lowest_point_z(model, data, robot.slot)
+        model.body_pos[robot.base_body_id] = saved
         # A robot with no collision geometry has no lowest point (inf): its base goes at the
         # clearance height, not at -inf, which made every step NaN.
         height = SPAWN_CLEARANCE_M - (lowest if math.isfinite(lowest) else 0.0)
-        logger.info("%s: no %s.base_height_m, derived %.4f m from the model's lowest point", info.name, mode, height)
+        logger.info("%s: no %s.base_height_m, derived %.4f m from the model's lowest point", robot.name, mode, height)
     robot.base_height_m = float(height)
     place_base(robot, robot.base_height_m)
-    return robot
+
+
+WORLD_COLLISION_GROUPS: Final = 30
+"""Robots of a world get contact bits 1..30 in turn: two robots whose places in the world differ by a
+multiple of 30 share a bit and pass through each other (MuJoCo has 32 contact bits; bit 0 is the floor)."""
+
+
+def build_world(placements: list[Placement], mode: Mode, timestep_s: float | None = None) -> list[Robot]:
+    """Compile several robots into ONE model (one floor, one MjData), each under its own name prefix.
+
+    Robots touch each other and the floor, but not themselves (as `build` with self_collision off):
+    robot k's geoms carry contact bit 1 + k % 30 and accept the floor's bit and every other robot's
+    (a fixed robot stands clear of the floor, as in `build`). The timestep and integrator are the
+    first robot's; gravity is on when any robot floats (a fixed robot's motors then hold its links up).
+
+    Returns:
+        One Robot per placement, in order, all sharing one MjModel; each knows its slot in it.
+    """
+    if not placements:
+        raise ValueError("a world needs at least one robot")
+    world = mujoco.MjSpec()
+    world.compiler.fusestatic = False
+    modes = [placement.mode or mode for placement in placements]
+    bits = [1 << (1 + k % WORLD_COLLISION_GROUPS) for k in range(len(placements))]
+    all_robots = sum(set(bits))
+    # A floating robot stands on the floor; a fixed one is welded on its stand, clear of it (as in `build`).
+    on_floor = sum({bit for bit, m in zip(bits, modes) if m == "floating"})
+    prepared_list: list[_Prepared] = []
+    for k, (placement, robot_mode, bit) in enumerate(zip(placements, modes, bits)):
+        prepared = _prepare(placement.files, robot_mode)
+        if k == 0:
+            world.option.timestep = prepared.spec.option.timestep
+            world.option.integrator = prepared.spec.option.integrator
+            world.option.gravity = [0.0, 0.0, -9.81] if on_floor else [0.0, 0.0, 0.0]
+            floor = prepared.spec.geom(FLOOR_NAME)
+            world.worldbody.add_geom(name=FLOOR_NAME, type=floor.type, size=floor.size, friction=floor.friction,
+                                     rgba=floor.rgba, contype=FLOOR_BIT, conaffinity=FLOOR_BIT | on_floor)
+            world.worldbody.add_light(name="sun", pos=[0.0, 0.0, 4.0], dir=[0.0, 0.0, -1.0],
+                                      type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+        for option in ("timestep", "integrator", "gravity"):  # the world's options: no attach conflict
+            setattr(prepared.spec.option, option, getattr(world.option, option))
+        floor_bit = FLOOR_BIT if robot_mode == "floating" else 0
+        for geom in prepared.spec.geoms:
+            if geom.parent.name != "world":
+                geom.contype, geom.conaffinity = bit, floor_bit | (all_robots & ~bit)
+        frame = world.worldbody.add_frame()
+        frame.attach_body(prepared.spec.body(prepared.base_link), placement.prefix, "")
+        prepared_list.append(prepared)
+    try:
+        model = world.compile()
+    except ValueError as exc:
+        raise RobotModelError(f"MuJoCo could not compile the world: {exc}") from exc
+    if timestep_s:
+        model.opt.timestep = timestep_s
+    robots = []
+    for placement, prepared, robot_mode in zip(placements, prepared_list, modes):
+        slot = _slot_of(model, placement.prefix, prepared.base_link)
+        robot = _robot_from(prepared, model, placement.files, robot_mode, placement.prefix, slot)
+        robot.spawn_xy, robot.spawn_yaw_rad = placement.xy, placement.yaw_rad
+        _place_spawn(robot)
+        robots.append(robot)
+    return robots
+
+
+def _slot_of(model: mujoco.MjModel, prefix: str, base_link: str) -> WorldSlot:
+    """The contiguous ranges of the bodies, joints and actuators named with `prefix`."""
+    def span(kind: mujoco.mjtObj, count: int) -> list[int]:
+        return [i for i in range(count) if (mujoco.mj_id2name(model, kind, i) or "").startswith(prefix)]
+
+    bodies = span(mujoco.mjtObj.mjOBJ_BODY, model.nbody)
+    joints = span(mujoco.mjtObj.mjOBJ_JOINT, model.njnt)
+    actuators = span(mujoco.mjtObj.mjOBJ_ACTUATOR, model.nu)
+    qpos_start = int(model.jnt_qposadr[joints[0]])
+    last = joints[-1]
+    qpos_end = int(model.jnt_qposadr[last]) + {0: 7, 1: 4}.get(int(model.jnt_type[last]), 1)
+    dof_start = int(model.jnt_dofadr[joints[0]])
+    dof_end = int(model.jnt_dofadr[last]) + {0: 6, 1: 3}.get(int(model.jnt_type[last]), 1)
+    return WorldSlot(slice(qpos_start, qpos_end), slice(dof_start, dof_end),
+                     slice(bodies[0], bodies[-1] + 1), slice(actuators[0], actuators[-1] + 1))
 
 
 def place_base(robot: Robot, height: float) -> None:
@@ -373,10 +500,18 @@ def place_base(robot: Robot, height: float) -> None:
     model = robot.model
     if robot.free_qpos_adr >= 0:
         a = robot.free_qpos_adr
-        model.qpos0[a:a + 7] = [0.0, 0.0, height, 1.0, 0.0, 0.0, 0.0]
+        model.qpos0[a:a + 7] = spawn_pose(robot, height)
         model.body_pos[robot.base_body_id] = 0.0
     else:
-        model.body_pos[robot.base_body_id] = [0.0, 0.0, height]
+        model.body_pos[robot.base_body_id] = [*robot.spawn_xy, height]
+        if robot.spawn_yaw_rad:
+            model.body_quat[robot.base_body_id] = spawn_pose(robot, height)[3:]
+
+
+def spawn_pose(robot: Robot, height: float) -> list[float]:
+    """The free joint's pose at spawn: x, y, z, then the quaternion (w, x, y, z) of the spawn heading."""
+    half = robot.spawn_yaw_rad / 2
+    return [*robot.spawn_xy, height, math.cos(half), 0.0, 0.0, math.sin(half)]
 
 
 def mjcf_xml(files: RobotFiles, mode: Mode) -> str:

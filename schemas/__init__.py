@@ -29,6 +29,9 @@ from .messages import (
     ResumeRequest,
     RobotInfo,
     Ros1Status,
+    RobotStates,
+    WorldAdvanceReply,
+    WorldAdvanceRequest,
     SimStatus,
     StepRequest,
     UnitreeStatus,
@@ -42,5 +45,5 @@ __all__ = [
     "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
     "UnitreeStatus",
-    "AdvanceReply", "AppliedCommand", "Ros1Status",
+    "AdvanceReply", "AppliedCommand", "Ros1Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
 ]

@@ -59,6 +59,11 @@ class Keys:
     ctl_mode: str
     ctl_advance: str
     applied: str
+    world_pause: str
+    world_resume: str
+    world_step: str
+    world_reset: str
+    world_advance: str
     robot_info: str
     urdf: str
     mesh_any: str

@@ -459,6 +459,37 @@ class AdvanceReply(Message, frozen=True, tag="advance_reply", kw_only=True):
     """IMU reading of the new instant (as published on state/imu)."""
 
 
+class WorldAdvanceRequest(Message, frozen=True, tag="world_advance_request", kw_only=True,
+                          forbid_unknown_fields=True):
+    """world/advance (a world under the lockstep clock): several robots' commands, one step of time for all."""
+
+    commands: dict[str, MotorCommand] = {}
+    """Robot id -> its new motor command; a robot left out keeps its held command."""
+
+
+class RobotStates(Message, frozen=True, tag="robot_states", kw_only=True):
+    """One robot's states of one instant, as published on its state/joints, state/odom and state/imu."""
+
+    joints: JointState
+    odom: Odometry
+    imu: Imu
+
+
+class WorldAdvanceReply(Message, frozen=True, tag="world_advance_reply", kw_only=True):
+    """The answer to world/advance: every robot's states of the new instant."""
+
+    ok: bool
+    """True when every command was accepted and the world advanced; false: nothing was applied."""
+    error: str | None = None
+    """Why not, when `ok` is false."""
+    sim_time_s: float = 0.0
+    """World time after the request, s."""
+    steps: int = 0
+    """Physics steps since the world's last reset."""
+    states: dict[str, RobotStates] = {}
+    """Robot id -> its states of the new instant (every robot of the world)."""
+
+
 # --- edge adapters ------------------------------------------------------------
 
 
@@ -567,5 +598,7 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     AppliedCommand,
     AdvanceReply,
     Ros1Status,
+    WorldAdvanceRequest,
+    WorldAdvanceReply,
 )
 """Every top-level message type, in the order the docs list them."""

@@ -20,6 +20,8 @@ from typing import Final, Generic, Literal, TypeVar
 
 from .messages import (
     AdvanceReply,
+    WorldAdvanceReply,
+    WorldAdvanceRequest,
     AppliedCommand,
     BridgeReport,
     CtlReply,
@@ -165,6 +167,19 @@ CTL_MODE: Final = Topic("ctl/mode", "queryable", "any client", "sim", "on demand
 CTL_ADVANCE: Final = Topic("ctl/advance", "queryable", "any client (a controller)", "sim",
                            "on demand, under `clock: lockstep`", MotorCommand, AdvanceReply,
                            note="(after the steps ran)", name="ctl_advance")
+WORLD_NOTE: Final = "(a world of several robots, `zensim sim --world`: `{robot}` is the world's id)"
+WORLD_PAUSE: Final = Topic("world/pause", "queryable", "any client", "sim (a world)", "on demand", PauseRequest, CtlReply,
+                           note=WORLD_NOTE, name="world_pause")
+WORLD_RESUME: Final = Topic("world/resume", "queryable", "any client", "sim (a world)", "on demand", ResumeRequest,
+                            CtlReply, note=WORLD_NOTE, name="world_resume")
+WORLD_STEP: Final = Topic("world/step", "queryable", "any client", "sim (a world)", "on demand, while paused",
+                          StepRequest, CtlReply, note=WORLD_NOTE, name="world_step")
+WORLD_ADVANCE: Final = Topic("world/advance", "queryable", "any client (a controller of several robots)",
+                             "sim (a world, `--clock lockstep`)", "on demand", WorldAdvanceRequest, WorldAdvanceReply,
+                             note=WORLD_NOTE, name="world_advance")
+WORLD_RESET: Final = Topic("world/reset", "queryable", "any client", "sim (a world)", "on demand", ResetRequest,
+                           CtlReply, note="(every robot to its default pose, world time to 0: an empty request)",
+                           name="world_reset")
 APPLIED: Final = Topic("state/applied", "publication", "sim", "anyone (the recorder, resim)",
                        "one per lockstep advance", AppliedCommand, name="applied")
 # --- description ------------------------------------------------------------------
@@ -184,6 +199,7 @@ TOPICS: Final[tuple[Topic, ...]] = (
     JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
+    WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE,
     ROBOT_INFO, URDF, MESH, ALIVE, ROUTER_ALIVE,
 )
 """Every topic, in the order the docs list them."""
@@ -228,14 +244,14 @@ EVERY_ROLE_WATCHES: Final = ("alive/*",)
 """Liveliness every role may watch (liveliness subscribers and queries): who is up is no secret."""
 
 ROLES: Final[tuple[Role, ...]] = (
-    Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**"), tokens=("alive/sim",)),
+    Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim",)),
     Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
     Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (and its locomotion controller)", publishes=("cmd/motors", "state/unitree"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/unitree",)),
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
     Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/**",)),
     Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/**",), tokens=("alive/sim", "alive/replay")),
-    Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**")),
+    Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**", "world/*")),
     Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**",)),
 )
 """Every role. The router denies everything a role does not list (docs/security.md)."""

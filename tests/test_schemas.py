@@ -55,6 +55,10 @@ SAMPLES.update({
     "advance_reply": dict(ok=True, sim_time_s=0.04, steps=20, joints=SAMPLES["joint_state"], odom=SAMPLES["odometry"],
                           imu=SAMPLES["imu"]),
 })
+# A world's lockstep (issue 21).
+SAMPLES["world_advance_request"] = dict(commands={"g1a": SAMPLES["motor_command"]})
+SAMPLES["world_advance_reply"] = dict(ok=True, sim_time_s=0.02, steps=10, states={"g1a": dict(
+    joints=SAMPLES["joint_state"], odom=SAMPLES["odometry"], imu=SAMPLES["imu"])})
 # The ROS 1 gateway's status (issue 20).
 SAMPLES["ros1_status"] = dict(seq=4, master_uri="http://127.0.0.1:11311", master_up=True, joint_states_published=400,
                               joint_states_rate_hz=100.0, commands_received=5, commands_forwarded=3, rejected=2,

@@ -20,6 +20,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     setup_logging(settings.log_level)
     from .service import load_simulation, run  # imports mujoco: only after the settings parsed
 
+    if settings.world:  # several robots in one world (world.py)
+        from .world import load_world, run_world
+
+        try:
+            world = load_world(settings)
+        except StartupError as exc:
+            return fail(PROG, str(exc))
+        return serve(PROG, settings, functools.partial(run_world, world=world), role="sim")
     try:
         sim = load_simulation(settings)  # before the session: a bad robot file fails fast
     except StartupError as exc:

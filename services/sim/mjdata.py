@@ -13,7 +13,7 @@ import math
 import mujoco
 import numpy as np
 
-from zensim.robots.builder import Robot, place_base
+from zensim.robots.builder import Robot, place_base, spawn_pose
 
 def _vector(robot: Robot, name: str, value: object) -> np.ndarray:
     arr = np.asarray(value, dtype=float).reshape(-1)
@@ -53,15 +53,41 @@ def reset(robot: Robot, data: mujoco.MjData, q: np.ndarray | None = None, base_h
     """
     q_ = robot.default_q.copy() if q is None else _vector(robot, "q", q)
     height = robot.base_height_m if base_height_m is None else float(base_height_m)
-    mujoco.mj_resetData(robot.model, data)
+    if robot.slot is None:
+        mujoco.mj_resetData(robot.model, data)
+    else:
+        _reset_slot(robot, data)
     place_base(robot, height)
     if robot.free_qpos_adr >= 0:
         a = robot.free_qpos_adr
-        data.qpos[a:a + 7] = [0.0, 0.0, height, 1.0, 0.0, 0.0, 0.0]
+        data.qpos[a:a + 7] = spawn_pose(robot, height)
     data.qpos[robot.qpos_adr] = q_
     zeros = np.zeros(robot.nu)
     apply_motor_command(robot, data, q_, zeros, robot.kp, robot.kd, zeros)
+    if robot.slot is None:
+        mujoco.mj_forward(robot.model, data)
+        return
+    # In a world, mj_forward would also recompute the other robots' acceleration-stage figures (actuator
+    # torques, accelerometers) of this instant: they keep what they last published; only this robot moved.
+    torques, sensors = data.qfrc_actuator.copy(), data.sensordata.copy()
     mujoco.mj_forward(robot.model, data)
+    own_dof = robot.slot.dof
+    torques[own_dof] = data.qfrc_actuator[own_dof]
+    for own in robot.sensor_slices.values():
+        sensors[own] = data.sensordata[own]
+    data.qfrc_actuator[:] = torques
+    data.sensordata[:] = sensors
+
+
+def _reset_slot(robot: Robot, data: mujoco.MjData) -> None:
+    """mj_resetData for one robot of a world: its own state only; time and the other robots go on."""
+    slot, model = robot.slot, robot.model
+    assert slot is not None
+    data.qpos[slot.qpos] = model.qpos0[slot.qpos]
+    for array in (data.qvel, data.qacc, data.qacc_warmstart, data.qfrc_applied):
+        array[slot.dof] = 0.0
+    data.xfrc_applied[slot.bodies] = 0.0
+    data.ctrl[slot.actuators] = 0.0
 
 
 def _rotate_to_body(quat_wxyz: np.ndarray, vec_world: np.ndarray) -> np.ndarray:

@@ -20,7 +20,9 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -75,6 +77,20 @@ BROKEN_PHYSICS_WARNINGS = (
 """MuJoCo's own guards: when one fires it has already zeroed the controls or reset mjData."""
 
 
+class Checked(NamedTuple):
+    """A command checked against one build of the robot (Simulation.check_command)."""
+
+    robot: Robot
+    idx: np.ndarray
+    """The joints it addresses, canonical indices."""
+    q: np.ndarray
+    """Its targets, clamped to the joint limits."""
+    kp: np.ndarray
+    kd: np.ndarray
+    clamped: int
+    """How many targets were clamped."""
+
+
 class CommandError(ValueError):
     """A command that does not fit the robot (unknown joint, wrong length, gain out of bounds)."""
 
@@ -113,6 +129,8 @@ class Simulation:
         limits: bounds on commanded gains.
         watchdog_timeout_s: wall-clock silence after which the default pose is held.
         timestep_s: physics step; None keeps the control file's.
+        shared: a robot of a world (services/sim/world.py): its Robot in the world's model, the world's
+            MjData, and the world's step (which steps every robot at once). None: a world of its own.
     """
 
     def __init__(
@@ -122,8 +140,10 @@ class Simulation:
         limits: Limits,
         watchdog_timeout_s: float,
         timestep_s: float | None = None,
+        shared: tuple[Robot, mujoco.MjData, Callable[[int], None]] | None = None,
     ) -> None:
         self.files = files
+        self._shared = shared
         self.limits = limits
         self.watchdog_timeout_s = watchdog_timeout_s
         self._timestep_override = timestep_s
@@ -142,11 +162,17 @@ class Simulation:
     # --- model -----------------------------------------------------------
 
     def _load(self, mode: Mode) -> None:
-        robot = build(self.files, mode)
-        if self._timestep_override:
-            robot.model.opt.timestep = self._timestep_override
+        if self._shared is not None:
+            if mode != self._shared[0].mode:
+                raise CommandError(f"a robot of a world stays in the world's mode ({self._shared[0].mode}); "
+                                   "restart the world in another mode")
+            robot, self.data = self._shared[0], self._shared[1]
+        else:
+            robot = build(self.files, mode)
+            if self._timestep_override:
+                robot.model.opt.timestep = self._timestep_override
+            self.data = mujoco.MjData(robot.model)
         self.robot = robot
-        self.data = mujoco.MjData(robot.model)
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self.steps = 0
@@ -185,6 +211,8 @@ class Simulation:
         q = self._pose_from(request)  # checked before anything changes
         self._check_height(request)
         if request.mode is not None and request.mode != self.mode:
+            if self._shared is not None:
+                raise CommandError(f"a robot of a world stays in the world's mode ({self.mode})")
             other = build(self.files, request.mode)  # checked against the new mode before switching
             self._check_height(request, other)
             self._load(request.mode)
@@ -196,7 +224,8 @@ class Simulation:
         self.steps = 0
         self.resets += 1
         self._apply(self._targets)
-        mujoco.mj_forward(self.robot.model, self.data)
+        if self.robot.slot is None:  # a robot of a world: mjdata.reset ran its own forward, the others untouched
+            mujoco.mj_forward(self.robot.model, self.data)
 
     def _pose_from(self, request: ResetRequest) -> np.ndarray:
         q = self.robot.default_q.copy()
@@ -246,7 +275,7 @@ class Simulation:
             raise CommandError(f"unknown joint(s): {shown}{more}")
         return np.fromiter((self._index[name] for name in names), int, len(names))
 
-    def accept_command(self, command: MotorCommand) -> int:
+    def accept_command(self, command: MotorCommand, checked: Checked | None = None) -> int:
         """Validate `command` against the robot and make it the one applied from the next step on.
 
         A partial command (with `names`) changes only those joints. Nothing is
@@ -258,6 +287,35 @@ class Simulation:
         Raises:
             CommandError: unknown joints, wrong vector length, gains out of bounds.
         """
+        robot = self.robot
+        if checked is None or checked.robot is not robot:  # unchecked, or checked against a model since rebuilt
+            checked = self._checked(command)
+        idx, clipped, kp, kd, n_clamped = checked.idx, checked.q, checked.kp, checked.kd, checked.clamped
+        with self._lock:
+            if robot is not self.robot:  # the model was rebuilt meanwhile
+                raise CommandError("the model changed while the command was checked; send it again")
+            base = self._targets
+            new = MotorTargets(base.q.copy(), base.dq.copy(), base.kp.copy(), base.kd.copy(), base.tau.copy())
+            new.q[idx] = clipped
+            new.dq[idx] = 0.0 if command.dq is None else command.dq
+            new.kp[idx] = kp
+            new.kd[idx] = kd
+            new.tau[idx] = 0.0 if command.tau is None else command.tau
+            self._targets = new
+            self._last_command_wall = time.monotonic()
+            if n_clamped:
+                self.clamped += 1
+        return n_clamped
+
+    def check_command(self, command: MotorCommand) -> Checked:
+        """accept_command's checks alone: raise CommandError when `command` does not fit the robot, change
+        nothing; the result, given to accept_command, spares it checking again (world.py checks every
+        robot's command before it applies any)."""
+        return self._checked(command)
+
+    def _checked(self, command: MotorCommand) -> Checked:
+        """The robot checked against, the joints a command addresses, its targets clamped to the joint
+        limits, its gains, and how many targets were clamped."""
         robot = self.robot
         if command.names is None:
             if len(command.q) != robot.nu:
@@ -281,21 +339,7 @@ class Simulation:
                               f"{TAU_LIMIT_FACTOR:g} x the effort limit")
         clipped = np.clip(q, robot.q_min[idx], robot.q_max[idx])
         n_clamped = int(np.count_nonzero(clipped != q))
-        with self._lock:
-            if robot is not self.robot:  # the model was rebuilt meanwhile
-                raise CommandError("the model changed while the command was checked; send it again")
-            base = self._targets
-            new = MotorTargets(base.q.copy(), base.dq.copy(), base.kp.copy(), base.kd.copy(), base.tau.copy())
-            new.q[idx] = clipped
-            new.dq[idx] = 0.0 if command.dq is None else command.dq
-            new.kp[idx] = kp
-            new.kd[idx] = kd
-            new.tau[idx] = 0.0 if command.tau is None else command.tau
-            self._targets = new
-            self._last_command_wall = time.monotonic()
-            if n_clamped:
-                self.clamped += 1
-        return n_clamped
+        return Checked(robot, idx, clipped, kp, kd, n_clamped)
 
     def reject(self, reason: str) -> None:
         """Count a rejected command (decode or validation failure); any thread."""
@@ -349,14 +393,21 @@ class Simulation:
         written only when they changed: a new command, or the watchdog
         engaging or letting go. That keeps the hot loop at MuJoCo's own cost.
         """
+        if self._shared is not None:  # one robot of a world: the world steps every robot together
+            self._shared[2](n)
+            return
         model, data = self.robot.model, self.data
         for _ in range(n):
-            targets = self.targets()
-            if targets is not self._applied:
-                self._apply(targets)
+            self.apply_targets()
             mujoco.mj_step2(model, data)
             mujoco.mj_step1(model, data)
         self.steps += n
+
+    def apply_targets(self) -> None:
+        """Give the actuators the current targets, when they changed since the last step."""
+        targets = self.targets()
+        if targets is not self._applied:
+            self._apply(targets)
 
     def broken(self) -> str | None:
         """Why the physics state cannot be trusted any more, or None while it is sound.
@@ -369,10 +420,12 @@ class Simulation:
         reset and says why, instead of streaming a teleported robot.
         """
         data, robot = self.data, self.robot
-        for warning in BROKEN_PHYSICS_WARNINGS:
-            if data.warning[warning].number > 0:
-                return f"MuJoCo {warning.name} (index {data.warning[warning].lastinfo})"
-        if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
+        if robot.slot is None:  # in a world, MuJoCo's warnings are the world's (world.py checks them)
+            reason = broken_warning(data)
+            if reason:
+                return reason
+        qpos, qvel = (data.qpos, data.qvel) if robot.slot is None else (data.qpos[robot.slot.qpos], data.qvel[robot.slot.dof])
+        if not (np.all(np.isfinite(qpos)) and np.all(np.isfinite(qvel))):
             return "a non-finite position or velocity"
         if robot.free_qpos_adr >= 0:
             height = float(data.qpos[robot.free_qpos_adr + 2])
@@ -436,6 +489,14 @@ class Simulation:
             mesh_paths=tuple(robot.mesh_files),
             keys=keys.table(),
         )
+
+
+def broken_warning(data: mujoco.MjData) -> str | None:
+    """The first of MuJoCo's bad-state warnings raised on `data`, as a reason; None when none was."""
+    for warning in BROKEN_PHYSICS_WARNINGS:
+        if data.warning[warning].number > 0:
+            return f"MuJoCo {warning.name} (index {data.warning[warning].lastinfo})"
+    return None
 
 
 def reset_height_range(robot: Robot) -> tuple[float, float]:

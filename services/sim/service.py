@@ -50,6 +50,9 @@ from zensim.schemas import (
     Codec,
     CtlReply,
     DecodeError,
+    Imu,
+    JointState,
+    Odometry,
     Keys,
     Mode,
     ModeRequest,
@@ -120,6 +123,14 @@ class PhysicsLock:
         return self._owner == threading.get_ident()
 
 
+@dataclass
+class WorldClock:
+    """Whether time runs, and its pacing: one robot's own, or shared by every robot of a world (world.py)."""
+
+    paused: bool
+    pacer: Pacer
+
+
 @dataclass(frozen=True)
 class Snapshot:
     """What a reply made off the loop thread says of the sim: taken whole by the physics-lock holder."""
@@ -143,7 +154,10 @@ def source_of(sample: zenoh.Sample) -> object:
 class SimService:
     """Runs a Simulation in real time and connects it to Zenoh."""
 
-    def __init__(self, session: zenoh.Session, settings: SimSettings, sim: Simulation, stop: threading.Event) -> None:
+    def __init__(self, session: zenoh.Session, settings: SimSettings, sim: Simulation, stop: threading.Event,
+                 world: tuple[WorldClock, PhysicsLock] | None = None) -> None:
+        """`world`: the clock and physics lock a robot of a world shares with the others (world.py);
+        None for a robot alone, whose loop is `run`."""
         self.session = session
         self.settings = settings
         self.sim = sim
@@ -152,9 +166,8 @@ class SimService:
         # Tells clients (the bridge) that this is a new sim, not the one they knew: a restarted
         # sim starts its reset counter at 0 again, so `resets` alone cannot say so.
         self.run_id = uuid.uuid4().hex[:16]
-        self.paused = settings.paused
-        self.pacer = Pacer(sim.timestep_s, settings.rtf)
-        self.physics = PhysicsLock()
+        self.clock = world[0] if world else WorldClock(settings.paused, Pacer(sim.timestep_s, settings.rtf))
+        self.physics = world[1] if world else PhysicsLock()
         """Held by whichever thread reads or writes MjData (the loop; a lockstep command's thread)."""
         self.requests = Requests(lambda reason: self._status_reply(ok=False, error=reason, off_loop=True))
         self.shed_commands = 0
@@ -180,7 +193,7 @@ class SimService:
         self.pub_imu = TypedPublisher.of(session, keys, topics.IMU)
         self.pub_status = TypedPublisher.of(session, keys, topics.SIM_STATUS)
         self.lockstep = None
-        if settings.clock == "lockstep":
+        if settings.clock == "lockstep" and world is None:  # a world's lockstep is world/advance (world.py)
             from .lockstep import Lockstep  # imported here: lockstep.py builds on this module
 
             self.lockstep = Lockstep(self)
@@ -202,6 +215,22 @@ class SimService:
             session.declare_queryable(keys.mesh_any, self._on_mesh),
         ]
         self.token = session.liveliness().declare_token(keys.alive("sim"))
+
+    @property
+    def paused(self) -> bool:
+        return self.clock.paused
+
+    @paused.setter
+    def paused(self, value: bool) -> None:
+        self.clock.paused = value
+
+    @property
+    def pacer(self) -> Pacer:
+        return self.clock.pacer
+
+    @pacer.setter
+    def pacer(self, value: Pacer) -> None:
+        self.clock.pacer = value
 
     # --- description -----------------------------------------------------
 
@@ -432,10 +461,15 @@ class SimService:
         """(physics lock held) The current instant on state/joints, odom, imu."""
         self.seq += 1
         sim = self.sim
+        self._publish_messages(sim.joint_state(self.seq), sim.odometry(self.seq), sim.imu(self.seq))
+
+    def _publish_messages(self, joints: JointState, odom: Odometry, imu: Imu) -> None:
+        """(physics lock held) Put one instant's states, made by `_publish_states` or for a whole world at
+        once (world.py's StateReader), numbered `self.seq`."""
         self._snapshot = self._take_snapshot()
-        self.pub_joints.put(sim.joint_state(self.seq))
-        self.pub_odom.put(sim.odometry(self.seq))
-        self.pub_imu.put(sim.imu(self.seq))
+        self.pub_joints.put(joints)
+        self.pub_odom.put(odom)
+        self.pub_imu.put(imu)
 
     def _publish_status(self, rtf: float) -> None:
         """(physics lock held) SimStatus: it reads MjData (fallen, time)."""

@@ -14,6 +14,8 @@ class SimSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     """Settings of `zensim sim`: the MuJoCo physics service."""
 
     env_prefix: ClassVar[str] = "SIM"
+    world: str | None = None
+    """A world file (TOML) of several robots in one MuJoCo world; its robots replace --robot-id, --robot, --urdf."""
     robot: str = "unitree_g1"
     """Bundled robot to simulate (unitree_g1, alias g1); ignored when --urdf is given."""
     urdf: str | None = None

@@ -1,0 +1,110 @@
+"""A world of several robots in one MuJoCo model (services/sim/world.py, robots/builder.py build_world), no network."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from support import TWO_JOINT_ARM
+from zensim.common.session import StartupError
+from zensim.schemas import MotorCommand
+from zensim.sim.settings import SimSettings
+from zensim.sim.world import World, load_world, read_world_file
+
+
+def make_world(tmp_path: Path, body: str) -> World:
+    (tmp_path / "arm.urdf").write_text(TWO_JOINT_ARM)
+    path = tmp_path / "world.toml"
+    path.write_text(body)
+    return load_world(SimSettings(world=str(path)))
+
+
+THREE = """
+[[robots]]
+id = "a"
+[[robots]]
+id = "b"
+xy = [1.0, 0.0]
+yaw_deg = 180
+[[robots]]
+id = "arm"
+urdf = "arm.urdf"
+mode = "fixed"
+xy = [0.0, 3.0]
+"""
+
+
+def hold(world: World, robot: str, changes: dict[str, float] | None = None) -> None:
+    sim = world.sims[robot]
+    sim.watchdog_timeout_s = 1e6
+    q = sim.robot.default_q.copy()
+    for name, value in (changes or {}).items():
+        q[sim.robot.joint_names.index(name)] = value
+    sim.accept_command(MotorCommand(q=q.tolist()))
+
+
+def test_robots_spawn_where_the_file_says_and_stand_alone_as_a_robot_alone(tmp_path: Path) -> None:
+    world = make_world(tmp_path, THREE)
+    a, b, arm = world.sims["a"], world.sims["b"], world.sims["arm"]
+    assert np.allclose(b.odometry(0).pos[:2], [1.0, 0.0]) and np.allclose(arm.odometry(0).pos[:2], [0.0, 3.0])
+    assert b.odometry(0).quat_wxyz[3] == pytest.approx(1.0)  # facing -x
+    assert (a.mode, arm.mode) == ("floating", "fixed")
+    hold(world, "a"), hold(world, "b")
+    world.step(1000)
+    for sim in (a, b):
+        assert sim.odometry(0).pos[2] > 0.65 and not sim.fallen()
+    assert world.data.time == pytest.approx(2.0)
+
+
+def test_one_reader_for_all_robots_says_what_each_robot_says(tmp_path: Path) -> None:
+    world = make_world(tmp_path, THREE)
+    hold(world, "a", {"left_elbow_joint": 1.0})
+    world.step(300)
+    for (joints, odom, imu), sim in zip(world.reader.read(world.data, [7, 8, 9]), world.sims.values()):
+        assert joints == sim.joint_state(joints.seq)
+        alone = sim.odometry(odom.seq)
+        assert odom.pos == alone.pos and odom.quat_wxyz == alone.quat_wxyz
+        assert np.allclose(odom.ang_vel_body, alone.ang_vel_body, atol=1e-12)
+        assert imu == sim.imu(imu.seq)
+
+
+def test_robots_collide_and_a_reset_of_one_leaves_the_others_bit_identical(tmp_path: Path) -> None:
+    world = make_world(tmp_path, THREE)
+    a, b = world.sims["a"], world.sims["b"]
+    hold(world, "a")
+    hold(world, "b", {"left_shoulder_pitch_joint": -1.5, "right_shoulder_pitch_joint": -1.5,
+                      "left_elbow_joint": 0.0, "right_elbow_joint": 0.0, "waist_pitch_joint": 0.5})
+    touching = 0
+    for _ in range(1500):
+        world.step(1)
+        bodies = world.model.geom_bodyid
+        for contact in world.data.contact[:world.data.ncon]:
+            one, two = bodies[contact.geom1], bodies[contact.geom2]
+            touching += bool(one and two and (one < b.robot.slot.bodies.start) != (two < b.robot.slot.bodies.start))
+    assert touching > 0
+    assert a.fallen() and a.odometry(0).pos[0] < -0.2  # pushed over backwards by b
+    before = {name: (sim.joint_state(0), sim.odometry(0)) for name, sim in world.sims.items() if name != "b"}
+    t = world.data.time
+    b.reset()
+    assert world.data.time == t
+    assert b.odometry(0).pos == pytest.approx([1.0, 0.0, b.robot.base_height_m])
+    for name, (joints, odom) in before.items():
+        assert world.sims[name].joint_state(0) == joints and world.sims[name].odometry(0) == odom
+
+
+def test_bad_world_files_are_refused_with_the_reason(tmp_path: Path) -> None:
+    cases = {
+        'id = "w"\nrobots = []\n': "length",
+        '[[robots]]\nid = "a"\n[[robots]]\nid = "a"\n': "unique",
+        '[[robots]]\nid = "A b"\n': "must match",
+        '[[robots]]\nid = "a"\nxy = [1e9, 0]\n': "within 10 km",
+        '[[robots]]\nid = "a"\nwheels = 4\n': "unknown field",
+        '[[robots]\n': "Expected",
+    }
+    for text, reason in cases.items():
+        path = tmp_path / "w.toml"
+        path.write_text(text)
+        with pytest.raises(StartupError, match=reason):
+            read_world_file(str(path))

@@ -1,0 +1,229 @@
+"""Several robots in one world (`zensim sim --world`), as users run it: real processes, real Zenoh.
+
+Three robots share one MuJoCo world: two G1s facing each other a metre apart and the two-joint arm
+on a stand. The bridge and the viewer (real chromium) drive and show G1 `a`, a plain client drives
+G1 `b` through cmd/motors and the arm too; `b` leans into `a` and knocks it over (contacts between
+robots); resetting `b` puts only `b` back. The world's own verbs pause, step and resume every robot.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from browser import Browser, chromium_binary
+from support import TWO_JOINT_ARM, Latest, Service, ctl, free_port, wait_for
+from zensim.schemas import JointState, Keys, Odometry, SimStatus
+
+SPACING_M = 1.0
+"""G1 `b` stands this far in front of `a`, facing it: apart they both stand, leaning over `b` reaches `a`."""
+LEAN = {"left_shoulder_pitch_joint": -1.5, "right_shoulder_pitch_joint": -1.5, "left_elbow_joint": 0.0,
+        "right_elbow_joint": 0.0, "waist_pitch_joint": 0.5}
+"""Arms straight forward and a bow: `b` topples forward into `a`."""
+FALLEN_Z_M = 0.4
+STANDING_Z_M = 0.65
+
+
+@pytest.fixture
+def world(tmp_path: Path, robot_id: str) -> dict[str, str]:
+    """A world file in tmp_path; returns the ids (world, a, b, arm) unique to this test."""
+    ids = {"world": f"{robot_id}-w", "a": f"{robot_id}-a", "b": f"{robot_id}-b", "arm": f"{robot_id}-arm"}
+    (tmp_path / "arm.urdf").write_text(TWO_JOINT_ARM)
+    (tmp_path / "world.toml").write_text(f"""
+id = "{ids['world']}"
+[[robots]]
+id = "{ids['a']}"
+[[robots]]
+id = "{ids['b']}"
+xy = [{SPACING_M}, 0.0]
+yaw_deg = 180
+[[robots]]
+id = "{ids['arm']}"
+urdf = "arm.urdf"
+mode = "fixed"
+xy = [0.0, 3.0]
+""")
+    ids["file"] = str(tmp_path / "world.toml")
+    return ids
+
+
+def motors(session: zenoh.Session, robot: str, q: list[float], names: list[str] | None = None) -> None:
+    payload = {"q": q} if names is None else {"names": names, "q": q}
+    session.put(Keys(robot).motors, json.dumps(payload).encode(), encoding=zenoh.Encoding("application/json"))
+
+
+class Feeder:
+    """Publishes one robot's motor command at 50 Hz on a thread, as a controller would, until stopped."""
+
+    def __init__(self, session: zenoh.Session, robot: str, q: list[float], names: list[str] | None = None) -> None:
+        self._stop = threading.Event()
+
+        def run() -> None:
+            while not self._stop.wait(0.02):
+                motors(session, robot, q, names)
+
+        self._thread = threading.Thread(target=run, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+
+
+@pytest.fixture
+def browser() -> Iterator[Browser]:
+    if chromium_binary() is None:
+        pytest.fail("chromium is needed: apt-get install -y --no-install-recommends chromium")
+    with Browser(width=1280, height=800) as b:
+        yield b
+
+
+def test_three_robots_one_world_viewer_client_contact_and_reset_one(
+    start_service: Callable[..., Service], zsession: zenoh.Session, world: dict[str, str], browser: Browser
+) -> None:
+    a, b, arm = world["a"], world["b"], world["arm"]
+    sim = start_service("sim", "--world", world["file"])
+    odom = {r: Latest(zsession, Keys(r).odom, Odometry) for r in (a, b)}
+    joints = {r: Latest(zsession, Keys(r).joints, JointState) for r in (a, b, arm)}
+    status = {r: Latest(zsession, Keys(r).sim_status, SimStatus) for r in (a, b, arm)}
+    for r in (a, b, arm):
+        status[r].wait(lambda s: s.sim_time_s > 0.5, 60, f"{r} running")
+    info_a = json.loads(next(iter(zsession.get(Keys(a).robot_info + "?format=json", timeout=10))).ok.payload.to_bytes())
+    info_arm = json.loads(next(iter(zsession.get(Keys(arm).robot_info + "?format=json", timeout=10))).ok.payload.to_bytes())
+    assert info_a["model"] != info_arm["model"] and info_arm["joint_names"] == ["shoulder", "elbow"]
+    assert info_arm["mode"] == "fixed" and info_a["mode"] == "floating"
+
+    # The bridge and the viewer serve G1 `a` alone, exactly as they serve a robot of its own.
+    port = free_port()
+    start_service("bridge", env={"ZENSIM_ROBOT_ID": a})
+    start_service("viz", "--port", str(port), env={"ZENSIM_ROBOT_ID": a})
+    browser.goto(f"http://127.0.0.1:{port}/")
+    browser.wait("window.zensim && zensim.sceneReady && zensim.generation >= 1", 90, "robot a drawn")
+    elbow = info_a["joint_names"].index("left_elbow_joint")
+    browser.set_slider("slider-left_elbow_joint", 1.2)
+    joints[a].wait(lambda m: abs(m.q[elbow] - 1.2) < 0.08, 20, "a's elbow following the viewer's slider")
+    browser.wait("zensim.status.sim && zensim.status.sim.sim_time_s > 0", 20, "a's status on the page")
+
+    # A plain client drives the arm (another description) through cmd/motors.
+    arm_feed = Feeder(zsession, arm, [0.8, -0.5])
+    joints[arm].wait(lambda m: abs(m.q[0] - 0.8) < 0.05 and abs(m.q[1] + 0.5) < 0.05, 15, "the arm at its target")
+    arm_feed.stop()
+    assert odom[a].value.pos[2] > STANDING_Z_M and odom[b].value.pos[2] > STANDING_Z_M
+
+    # ... and G1 `b`, which leans into `a`: contact between robots knocks `a` over.
+    names_b = info_a["joint_names"]  # the same description
+    lean = [LEAN.get(n, q) for n, q in zip(names_b, info_a["default_q"]["floating"])]
+    b_feed = Feeder(zsession, b, lean)
+    odom[a].wait(lambda m: m.pos[2] < FALLEN_Z_M, 20, "a knocked over by b")
+    status[a].wait(lambda s: s.fallen, 10, "a reported fallen")
+    b_feed.stop()
+    a_down = odom[a].wait(lambda m: True)
+    assert a_down.pos[0] < -0.2, a_down.pos  # pushed back, away from b
+    wait_for(lambda: status[b].value.command_age_s is not None and status[b].value.command_age_s > 0.2, 10, "b's feed stopped")
+
+    # Resetting `b` puts b back at its spawn and leaves a (fallen) and the arm (holding its pose) alone.
+    episodes = {r: status[r].value.episode for r in (a, b, arm)}
+    arm_q = list(joints[arm].value.q)
+    before = status[a].value.sim_time_s
+    reply = ctl(zsession, Keys(b).ctl_reset)
+    assert reply["ok"], reply
+    assert reply["sim_time_s"] >= before  # world time goes on: only b went back
+    odom[b].wait(lambda m: abs(m.pos[0] - SPACING_M) < 0.05 and m.pos[2] > STANDING_Z_M, 10, "b back at its spawn")
+    time.sleep(0.5)
+    assert odom[a].value.pos[2] < FALLEN_Z_M and odom[a].value.pos[0] < -0.2, odom[a].value.pos
+    assert status[a].value.episode == episodes[a] and status[arm].value.episode == episodes[arm]
+    assert status[b].wait(lambda s: s.episode != episodes[b]).resets == 1
+    # The arm's watchdog took over after its feed stopped (its default pose); a reset of b did not move it.
+    assert max(abs(x - y) for x, y in zip(joints[arm].value.q, arm_q)) < 0.05
+    assert sim.alive()
+
+
+def test_world_verbs_pause_step_resume_and_reset_every_robot(
+    start_service: Callable[..., Service], zsession: zenoh.Session, world: dict[str, str]
+) -> None:
+    ids = (world["a"], world["b"], world["arm"])
+    start_service("sim", "--world", world["file"])
+    status = {r: Latest(zsession, Keys(r).sim_status, SimStatus) for r in ids}
+    for r in ids:
+        status[r].wait(lambda s: s.sim_time_s > 0.2, 60, f"{r} running")
+    keys = Keys(world["world"])
+    paused = ctl(zsession, keys.world_pause)
+    assert paused["ok"] and paused["paused"]
+    for r in ids:
+        status[r].wait(lambda s: s.paused, 5, f"{r} paused")
+    t0 = ctl(zsession, keys.world_step, {"n": 10})["sim_time_s"]
+    t1 = ctl(zsession, keys.world_step, {"n": 10})["sim_time_s"]
+    assert t1 - t0 == pytest.approx(0.02, abs=1e-9)
+    time.sleep(0.3)
+    assert all(status[r].value.paused and status[r].value.sim_time_s == pytest.approx(t1) for r in ids)
+    # A robot's own pause verb is the world's: its robots cannot run apart.
+    assert ctl(zsession, Keys(world["a"]).ctl_resume)["ok"]
+    for r in ids:
+        status[r].wait(lambda s: not s.paused and s.sim_time_s > t1 + 0.2, 10, f"{r} running again")
+    # Refused, nothing done: world/reset takes no pose; a wildcard reaches every verb and none acts.
+    refused = ctl(zsession, keys.world_reset, {"base_height_m": 0.8})
+    assert not refused["ok"] and "empty request" in refused["error"]
+    for reply in zsession.get(f"{keys.root}/world/*", payload=b"{}", timeout=5):
+        assert not json.loads(reply.ok.payload.to_bytes())["ok"]
+    assert not status[world["a"]].value.paused
+    # world/reset: time back to 0, every robot a new episode.
+    episodes = {r: status[r].value.episode for r in ids}
+    reset = ctl(zsession, keys.world_reset)
+    assert reset["ok"] and reset["sim_time_s"] < 0.1
+    for r in ids:
+        status[r].wait(lambda s: s.episode != episodes[r], 5, f"{r} in a new episode")
+
+
+def test_world_lockstep_advances_all_robots_in_one_round_trip_bit_identical_across_runs(
+    start_service: Callable[..., Service], zsession: zenoh.Session, robot_id: str, tmp_path: Path
+) -> None:
+    """8 G1s under --clock lockstep: world/advance takes every robot's command and returns every robot's states;
+    the same commands from the same start give the same states, bit for bit, in a second run of the world."""
+    import math
+
+    import msgspec
+
+    from zensim.schemas import Codec, WorldAdvanceReply, WorldAdvanceRequest
+
+    ids = [f"{robot_id}-{k}" for k in range(8)]
+    path = tmp_path / "eight.toml"
+    path.write_text(f'id = "{robot_id}-w"\n' + "".join(
+        f'[[robots]]\nid = "{rid}"\nxy = [{1.2 * (k % 4)}, {1.2 * (k // 4)}]\n' for k, rid in enumerate(ids)))
+    key = Keys(f"{robot_id}-w").world_advance
+    request_codec, reply_codec = Codec(WorldAdvanceRequest), Codec(WorldAdvanceReply)
+
+    def run() -> list[WorldAdvanceReply]:
+        sim = start_service("sim", "--world", str(path), "--clock", "lockstep")
+        wait_for(lambda: list(zsession.liveliness().get(Keys(ids[-1]).alive("sim"), timeout=1)), 60, "the world up")
+        replies = []
+        for i in range(40):
+            commands = {rid: {"names": ["left_elbow_joint", "waist_yaw_joint"],
+                              "q": [0.5 + 0.5 * math.sin(0.2 * i + k), 0.3 * math.sin(0.1 * i * k)]}
+                        for k, rid in enumerate(ids)}
+            request = msgspec.convert({"commands": commands}, WorldAdvanceRequest)
+            got = list(zsession.get(key, payload=request_codec.encode(request),
+                                    encoding=zenoh.Encoding("application/msgpack"), timeout=10))
+            reply = reply_codec.decode(got[0].ok.payload.to_bytes(), "application/msgpack")
+            assert reply.ok, reply.error
+            assert sorted(reply.states) == sorted(ids)
+            replies.append(reply)
+        sim.stop()
+        wait_for(lambda: not list(zsession.liveliness().get(Keys(ids[0]).alive("sim"), timeout=1)), 10, "the world gone")
+        return replies
+
+    first, second = run(), run()
+    assert first[-1].steps == 400 and first[-1].sim_time_s == pytest.approx(0.8)
+    # The elbow followed its command: the commands were applied, and applied to their own robot.
+    assert first[-1].states[ids[0]].joints.q != first[-1].states[ids[1]].joints.q
+    for one, two in zip(first, second):
+        assert one.sim_time_s == two.sim_time_s
+        for rid in ids:
+            a, b = one.states[rid], two.states[rid]
+            assert (a.joints.q, a.joints.dq, a.joints.tau, a.odom.pos, a.odom.quat_wxyz, a.imu.accel) == \
+                   (b.joints.q, b.joints.dq, b.joints.tau, b.odom.pos, b.odom.quat_wxyz, b.imu.accel)
