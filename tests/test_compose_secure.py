@@ -7,6 +7,7 @@ Slow (builds the image, minutes); like test_compose_stack.py it fails, never ski
 
 from __future__ import annotations
 
+import http.cookiejar
 import json
 import os
 import re
@@ -130,7 +131,9 @@ def test_viewer_page_works_through_the_secured_stack(stack: Secured) -> None:
     printed = re.findall(r"\?token=([A-Za-z0-9_-]+)", stack.logs())
     assert printed, "the viz printed no URL with its token"
     url = f"{bare}?token={printed[-1]}"
-    with urllib.request.urlopen(url, timeout=10) as response:
+    # The token sets a cookie and redirects to the bare page, as in a browser: keep the cookie.
+    browser_like = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
+    with browser_like.open(url, timeout=10) as response:
         assert response.status == 200
     if chromium_binary() is None:
         pytest.fail("chromium is needed: apt-get install -y --no-install-recommends chromium")
