@@ -223,8 +223,8 @@ def test_a_restarted_sim_with_another_robot_is_learned_again(rig, zsession, star
     assert sent > 100
     state = joints.wait(lambda m: len(m.q) == 2 and abs(m.q[1] - 1.0) < 0.1, 10, "the arm's elbow at 1.0 rad")
     assert abs(state.q[0]) < 0.1, "motor 0 (disabled) moved the shoulder"
-    low_state = client.wait_state()
-    assert abs(low_state.motor_state[1].q - 1.0) < 0.1
+    # LowState_ reports it too (the newest: on a loaded machine it may trail state/joints a little).
+    wait_for(lambda: abs(client.wait_state().motor_state[1].q - 1.0) < 0.1, 10, "LowState_ with the elbow at 1.0 rad")
     status = Latest(zsession, keys.sim_status, SimStatus).wait(what="the new sim's status")
     assert status.rejected_commands == 0, status.last_error
 
