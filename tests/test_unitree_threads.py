@@ -59,5 +59,8 @@ def test_lowstate_is_written_without_the_adapters_lock(start_service, router_end
             wait_for(lambda: dds.writes >= 20, 30, "20 LowState_ written")
         finally:
             adapter.close()
+            # Cyclone keeps every entity in a class-level table, so the participant (and its sockets, tied to
+            # `lo`) would outlive the test inside the pytest process: delete it and its readers and writers.
+            dds.participant.__del__()
         assert dds.under_lock == 0, f"{dds.under_lock} of {dds.writes} LowState_ writes held the adapter's lock"
         assert adapter.lowstate_published() >= 19  # counted, under the lock, after each write
