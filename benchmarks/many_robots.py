@@ -30,7 +30,7 @@ from pathlib import Path
 import msgspec
 import zenoh
 
-from harness import Processes, cpu_s, free_port, plain_client, wait_for
+from harness import Processes, cpu_s, free_port, plain_client, thread_cpu_s, wait_for
 from zensim.robots import robot_files
 from zensim.robots.builder import build
 from zensim.schemas import Keys, MotorCommand, SimStatus
@@ -156,15 +156,17 @@ def measure(setup: str, n: int, seconds: float, endpoint: str, session: zenoh.Se
             commander = Commander(session, ids, payload)
         time.sleep(2.0)  # settle: every robot standing, commands flowing
         cpu0 = sum(cpu_s(s.pid) for s in sims)
+        threads0 = thread_cpu_s(sims[0].pid)
         start = time.monotonic()
         watcher.recording = True
         time.sleep(seconds)
         watcher.recording = False
         end = time.monotonic()
         cpu = (sum(cpu_s(s.pid) for s in sims) - cpu0) / (end - start)
+        threads = {name: (used - threads0.get(name, 0.0)) / (end - start) for name, used in thread_cpu_s(sims[0].pid).items()}
         rates = [watcher.counts[i] / (end - start) for i in ids]
         return {"rtf": watcher.worst_rtf(start, end), "mean_rtf": watcher.mean_rtf(start, end), "rate_min": min(rates),
-                "rate_mean": sum(rates) / n, "cpu": cpu, "load": os.getloadavg()[0]}
+                "rate_mean": sum(rates) / n, "cpu": cpu, "load": os.getloadavg()[0], "threads": threads}
     finally:
         if commander is not None:
             commander.stop()
@@ -179,6 +181,7 @@ def main() -> None:
     parser.add_argument("--max-procs", type=int, default=64, help="largest count run as one process per robot")
     parser.add_argument("--no-commands", action="store_true", help="no client commanding the robots")
     parser.add_argument("--only", choices=("world", "procs"), help="run one setup only")
+    parser.add_argument("--threads", action="store_true", help="also print where the sim's CPU went, by thread")
     args = parser.parse_args()
     counts = [int(c) for c in args.counts.split(",")]
     robot = build(robot_files("unitree_g1"), "floating")
@@ -208,6 +211,10 @@ def main() -> None:
                     print(f"| {n} | {setup} | {r['rtf']:.3f} | {r['mean_rtf']:.3f} | {r['rate_min']:.1f} "
                           f"({r['rate_mean']:.1f}) | {r['cpu']:.2f} | {r['cpu'] / r['mean_rtf']:.2f} | {r['load']:.1f} |",
                           flush=True)
+                    if args.threads:
+                        busiest = sorted(r["threads"].items(), key=lambda kv: -kv[1])[:6]
+                        print(f"  ({setup} {n}: cores by thread of {'the world' if setup == 'world' else 'one sim'}: "
+                              + ", ".join(f"{name} {used:.2f}" for name, used in busiest) + ")", flush=True)
     finally:
         routers.stop_all()
 

@@ -38,7 +38,11 @@ class RateLimitedLog:
     def info(self, msg: str, *args: object) -> None:
         self.log(logging.INFO, msg, *args)
 
-    def log(self, level: int, msg: str, *args: object) -> None:
+    def exception(self, msg: str, *args: object) -> None:
+        """An error line with the traceback of the exception being handled (a bug, but one per period)."""
+        self.log(logging.ERROR, msg, *args, exc_info=True)
+
+    def log(self, level: int, msg: str, *args: object, exc_info: bool = False) -> None:
         now = time.monotonic()
         with self._lock:
             if now - self._last < self._period_s:
@@ -47,4 +51,4 @@ class RateLimitedLog:
             suppressed, self._suppressed, self._last = self._suppressed, 0, now
         if suppressed:
             msg = f"{msg} (and {suppressed} more like it held back)"
-        self._logger.log(level, msg, *args)
+        self._logger.log(level, msg, *args, exc_info=exc_info)

@@ -35,10 +35,31 @@ def apply_motor_command(robot: Robot, data: mujoco.MjData, q: object, dq: object
     """
     q_, dq_, kp_, kd_, tau_ = (_vector(robot, n, v) for n, v in
                                (("q", q), ("dq", dq), ("kp", kp), ("kd", kd), ("tau", tau)))
+    write_actuators(robot, data, robot.actuator_ids, *actuator_values(q_, dq_, kp_, kd_, tau_))
+
+
+def actuator_values(q: np.ndarray, dq: np.ndarray, kp: np.ndarray, kd: np.ndarray,
+                    tau: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A motor command as the actuators take it: the bias's -kp and -kd, and ctrl = kp*q + kd*dq + tau."""
+    return -kp, -kd, kp * q + kd * dq + tau
+
+
+def write_actuators(robot: Robot, data: mujoco.MjData, index: np.ndarray | slice, neg_kp: np.ndarray,
+                    neg_kd: np.ndarray, ctrl: np.ndarray) -> None:
+    """Write actuator_values into the model's bias and `data.ctrl` (`index`: the robot's actuators, as
+    `actuator_index` gives them)."""
+    robot.model.actuator_biasprm[index, 1] = neg_kp
+    robot.model.actuator_biasprm[index, 2] = neg_kd
+    data.ctrl[index] = ctrl
+
+
+def actuator_index(robot: Robot) -> np.ndarray | slice:
+    """The robot's actuators in canonical joint order: a slice when they are consecutive (they are when the
+    builder made the model: a slice writes several times faster than a list of ids), else their ids."""
     ids = robot.actuator_ids
-    robot.model.actuator_biasprm[ids, 1] = -kp_
-    robot.model.actuator_biasprm[ids, 2] = -kd_
-    data.ctrl[ids] = kp_ * q_ + kd_ * dq_ + tau_
+    if len(ids) and np.array_equal(ids, np.arange(ids[0], ids[0] + len(ids))):
+        return slice(int(ids[0]), int(ids[0]) + len(ids))
+    return ids
 
 
 def reset(robot: Robot, data: mujoco.MjData, q: np.ndarray | None = None, base_height_m: float | None = None) -> None:

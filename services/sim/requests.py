@@ -92,7 +92,9 @@ class Requests:
         return True
 
     def empty(self) -> bool:
-        return self._queue.empty()
+        """Whether no request waits: a hint, read without the queue's lock (the loop asks every step, for
+        each robot of a world, and a request submitted meanwhile is taken at the next step)."""
+        return not self._queue.queue
 
     def close(self, reason: str) -> None:
         """Answer whatever still waits, so no client hangs on a closing sim."""

@@ -185,6 +185,9 @@ class SimService:
         self._fallen_since: float | None = None
         self._robots_by_mode: dict[Mode, Robot] = {}
         self._snapshot = self._take_snapshot()
+        self.before_direct_put: Callable[[], None] = lambda: None
+        """Called before a state is put on this thread: a world waits there for the states its publisher
+        thread has yet to put (world_states.py), so that `seq` never goes back."""
         self._refresh_info()
 
         keys = self.keys
@@ -201,9 +204,11 @@ class SimService:
         # decoding thread, the oldest samples are dropped there, before they cost the GIL anything,
         # and the newest command never waits behind a backlog (a plain callback queues 256 samples
         # and then pushes back on the router, which delayed a good client's commands by 100 ms).
-        self._commands = session.declare_subscriber(keys.motors, zenoh.handlers.RingChannel(COMMAND_RING))
-        self._command_thread = threading.Thread(target=self._drain_commands, name="sim-commands", daemon=True)
-        self._command_thread.start()
+        self.commands = session.declare_subscriber(keys.motors, zenoh.handlers.RingChannel(COMMAND_RING))
+        self._command_thread: threading.Thread | None = None
+        if world is None:  # a world takes every robot's commands on one thread (world_commands.py)
+            self._command_thread = threading.Thread(target=self._drain_commands, name="sim-commands", daemon=True)
+            self._command_thread.start()
         self._declared = [
             session.declare_queryable(keys.ctl("reset"), self._ctl("reset", ResetRequest, self._reset)),
             session.declare_queryable(keys.ctl("pause"), self._ctl("pause", PauseRequest, self._pause)),
@@ -214,7 +219,13 @@ class SimService:
             session.declare_queryable(keys.urdf, self._on_urdf),
             session.declare_queryable(keys.mesh_any, self._on_mesh),
         ]
-        self.token = session.liveliness().declare_token(keys.alive("sim"))
+        self.token: zenoh.LivelinessToken | None = None
+        if world is None:  # a world says its robots are alive once it serves its own verbs too
+            self.announce()
+
+    def announce(self) -> None:
+        """Declare alive/sim: everything of this robot is served from now on."""
+        self.token = self.session.liveliness().declare_token(self.keys.alive("sim"))
 
     @property
     def paused(self) -> bool:
@@ -299,7 +310,7 @@ class SimService:
         """Thread: take the ring's commands, newest of each source, until the subscriber is undeclared."""
         # recv() on the handler, not the subscriber: undeclaring a subscriber that another thread
         # is blocked in is refused ("Already borrowed"); the handler's recv just ends with ZError.
-        ring = self._commands.handler
+        ring = self.commands.handler
         # Latest wins at the physics step: a command with a newer one from the same source behind it
         # would be overwritten before any step saw it, so it is shed unread. Samples leave zenoh's
         # ring at once (a sample kept there keeps its receive buffer alive: the RSS grew by 20 MB
@@ -312,7 +323,7 @@ class SimService:
                 sample = ring.recv() if not pending else ring.try_recv()
                 while sample is not None:
                     if self.lockstep is not None:  # lockstep: every command advances, in arrival order
-                        self._on_command(sample)
+                        self.on_command(sample)
                     else:
                         source = source_of(sample)
                         if pending.pop(source, None) is not None:  # re-inserted: keeps arrival order
@@ -329,10 +340,11 @@ class SimService:
                 continue
             next_take = now + COMMAND_BATCH_PERIOD_S
             for sample in pending.values():
-                self._on_command(sample)
+                self.on_command(sample)
             pending.clear()
 
-    def _on_command(self, sample: zenoh.Sample) -> None:
+    def on_command(self, sample: zenoh.Sample) -> None:
+        """Decode, check and apply one command sample (the command thread: this robot's, or its world's)."""
         try:
             command = decode_input(sample, self.command_codec, self.input_cap_bytes)
             if self.lockstep is not None:  # lockstep: each command advances, on this thread
@@ -464,15 +476,20 @@ class SimService:
         self._publish_messages(sim.joint_state(self.seq), sim.odometry(self.seq), sim.imu(self.seq))
 
     def _publish_messages(self, joints: JointState, odom: Odometry, imu: Imu) -> None:
-        """(physics lock held) Put one instant's states, made by `_publish_states` or for a whole world at
-        once (world.py's StateReader), numbered `self.seq`."""
+        """(physics lock held) Put one instant's states, made by `_publish_states`, numbered `self.seq`."""
         self._snapshot = self._take_snapshot()
+        self.before_direct_put()
+        self.put_states(joints, odom, imu)
+
+    def put_states(self, joints: JointState, odom: Odometry, imu: Imu) -> None:
+        """Put one instant's states (any thread: a world puts every robot's from its publisher thread)."""
         self.pub_joints.put(joints)
         self.pub_odom.put(odom)
         self.pub_imu.put(imu)
 
-    def _publish_status(self, rtf: float) -> None:
-        """(physics lock held) SimStatus: it reads MjData (fallen, time)."""
+    def _publish_status(self, rtf: float, fallen: bool | None = None, jitter_p99_s: float | None = None) -> None:
+        """(physics lock held) SimStatus: it reads MjData (fallen, time). A world passes what it worked out
+        for all robots at once: whether each has fallen, and its one pacer's jitter (read once per period)."""
         self.status_seq += 1
         sim = self.sim
         self.pub_status.put(
@@ -481,7 +498,7 @@ class SimService:
                 rtf=rtf,
                 paused=self.paused,
                 mode=sim.mode,
-                fallen=sim.fallen(),
+                fallen=sim.fallen() if fallen is None else fallen,
                 rejected_commands=sim.rejected,
                 shed_commands=self.shed_commands,
                 clamped_commands=sim.clamped,
@@ -492,7 +509,7 @@ class SimService:
                 steps=sim.steps,
                 timestep_s=sim.timestep_s,
                 target_rtf=self.settings.rtf,
-                step_jitter_p99_s=self.pacer.jitter_p99_s(),
+                step_jitter_p99_s=self.pacer.jitter_p99_s() if jitter_p99_s is None else jitter_p99_s,
                 resets=sim.resets,
                 run_id=self.run_id,
                 physics_resets=self.physics_resets,
@@ -504,10 +521,12 @@ class SimService:
             )
         )
 
-    def _check_fall(self) -> None:
+    def _check_fall(self, fallen: bool | None = None) -> None:
+        """With auto_reset_on_fall: reset after a fall lasting fall_reset_delay_s (`fallen`: a world's
+        verdict for all robots at once; None asks the sim)."""
         if not self.settings.auto_reset_on_fall:
             return
-        if not self.sim.fallen():
+        if not (self.sim.fallen() if fallen is None else fallen):
             self._fallen_since = None
             return
         if self._fallen_since is None:
@@ -588,9 +607,11 @@ class SimService:
                     next_status = now + status_period_s
 
     def close(self) -> None:
-        self.token.undeclare()
-        self._commands.undeclare()
-        self._command_thread.join(1.0)
+        if self.token is not None:
+            self.token.undeclare()
+        self.commands.undeclare()
+        if self._command_thread is not None:
+            self._command_thread.join(1.0)
         if self.lockstep is not None:
             self.lockstep.close()
         for entity in self._declared:

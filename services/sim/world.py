@@ -47,9 +47,6 @@ from zensim.schemas import (
     ResetRequest,
     ResumeRequest,
     StepRequest,
-    Imu,
-    JointState,
-    Odometry,
     RobotStates,
     WorldAdvanceReply,
     WorldAdvanceRequest,
@@ -65,11 +62,16 @@ from .physics import MAX_BASE_RISE_M, CommandError, MAX_BASE_SPEED_M_S, Limits, 
 from .requests import Request, Requests
 from .service import FAST_BATCH_STEPS, GIL_SWITCH_INTERVAL_S, PAUSED_POLL_S, PhysicsLock, SimService, WorldClock
 from .settings import SimSettings
+from .world_commands import WorldCommands
+from .world_states import Frame, StatePublisher, StateReader, States
 
 logger = logging.getLogger("zensim.sim")
 
 WORLD_INPUT_CAP_BYTES = 4096
 """Largest world/* request: they carry at most a step count."""
+WATCHDOG_CHECK_PERIOD_S = 0.01
+"""How often the world asks each robot's command watchdog (its timeout is 0.5 s by default, at least 10 ms):
+once per state period rather than once per robot and step, which cost 5 % of a 32-G1 world's loop."""
 
 
 class RobotEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -152,6 +154,10 @@ class World:
                       np.array([r.base_height_m + MAX_BASE_RISE_M for r in floating]))
         """Free joints' qpos and dof addresses, and the highest sound base of each floating robot."""
         self.reader = StateReader(self._sims)
+        self._next_watchdog_check = 0.0
+        self._fall_tilt_rad = np.array([sim.robot.control.model.fall_tilt_rad if sim.mode == "floating" else np.inf
+                                        for sim in self._sims])
+        """Each robot's fall threshold; a fixed robot never falls."""
         mujoco.mj_forward(self.model, self.data)
 
     @property
@@ -161,9 +167,14 @@ class World:
     def step(self, n: int = 1) -> None:
         """(physics lock held) Advance every robot `n` steps together, each with its own targets."""
         model, data, sims = self.model, self.data, self._sims
+        now = time.monotonic()
+        check_watchdog = now >= self._next_watchdog_check
+        if check_watchdog:
+            self._next_watchdog_check = now + WATCHDOG_CHECK_PERIOD_S
         for _ in range(n):
             for sim in sims:
-                sim.apply_targets()
+                sim.apply_targets(check_watchdog)
+            check_watchdog = False
             mujoco.mj_step2(model, data)
             mujoco.mj_step1(model, data)
         self.steps += n
@@ -181,56 +192,15 @@ class World:
             sound = bool((heights <= free[2]).all() and (speeds <= MAX_BASE_SPEED_M_S).all())
         return [] if sound else [sim for sim in self._sims if sim.broken()]
 
+    def fallen(self, frame: Frame) -> list[bool]:
+        """Whether each robot of a frame tilts past its fall threshold (as Simulation.fallen, all at once)."""
+        return (frame.tilts_rad() > self._fall_tilt_rad).tolist()
+
     def reset_time(self) -> None:
         """(physics lock held) mj_resetData of the whole world: time 0, warnings cleared (robots reset next)."""
         mujoco.mj_resetData(self.model, self.data)
         self.steps = 0
         self.resets += 1
-
-
-class StateReader:
-    """Every robot's JointState, Odometry and Imu of one instant, read from the world's MjData in a few
-    array operations (one gather per field for all robots, then list slices), not three per robot.
-
-    The same figures as Simulation.joint_state / odometry / imu (the body-frame angular velocity is the
-    world one turned by the base's inverse orientation, here for all robots at once)."""
-
-    SENSORS = ("base_pos", "base_quat", "base_linvel", "base_angvel", "imu_quat", "imu_gyro", "imu_accel")
-
-    def __init__(self, sims: tuple[Simulation, ...]) -> None:
-        robots = [sim.robot for sim in sims]
-        self.qpos = np.concatenate([r.qpos_adr for r in robots])
-        self.dof = np.concatenate([r.dof_adr for r in robots])
-        ends = np.cumsum([r.nu for r in robots])
-        self.spans = list(zip([0, *ends[:-1].tolist()], ends.tolist()))
-        self.sensors = {name: np.stack([np.arange(r.sensor_slices[name].start, r.sensor_slices[name].stop)
-                                        for r in robots]) for name in self.SENSORS}
-
-    def read(self, data: mujoco.MjData, seqs: list[int]) -> list[tuple[JointState, Odometry, Imu]]:
-        t = float(data.time)
-        q, dq, tau = (data.qpos[self.qpos].tolist(), data.qvel[self.dof].tolist(),
-                      data.qfrc_actuator[self.dof].tolist())
-        sensordata = data.sensordata
-        s = {name: sensordata[idx] for name, idx in self.sensors.items()}
-        quat = s["base_quat"]
-        ang_body = _rotate_by_inverse(quat, s["base_angvel"])
-        pos, quat_l, lin, ang = s["base_pos"].tolist(), quat.tolist(), s["base_linvel"].tolist(), ang_body.tolist()
-        imu_quat, gyro, accel = s["imu_quat"].tolist(), s["imu_gyro"].tolist(), s["imu_accel"].tolist()
-        out = []
-        for i, ((a, b), seq) in enumerate(zip(self.spans, seqs)):
-            out.append((JointState(sim_time_s=t, seq=seq, q=q[a:b], dq=dq[a:b], tau=tau[a:b]),
-                        Odometry(sim_time_s=t, seq=seq, pos=pos[i], quat_wxyz=quat_l[i], lin_vel_world=lin[i],
-                                 ang_vel_body=ang[i]),
-                        Imu(sim_time_s=t, seq=seq, quat_wxyz=imu_quat[i], gyro=gyro[i], accel=accel[i])))
-        return out
-
-
-def _rotate_by_inverse(quat_wxyz: np.ndarray, vec: np.ndarray) -> np.ndarray:
-    """Each row of `vec` turned by the inverse of each unit quaternion (as mju_rotVecQuat with the conjugate)."""
-    w = quat_wxyz[:, :1]
-    u = -quat_wxyz[:, 1:]
-    t = 2.0 * np.cross(u, vec)
-    return vec + w * t + np.cross(u, t)
 
 
 def load_world(settings: SimSettings) -> World:
@@ -260,8 +230,14 @@ class WorldService:
             for robot_id, sim in world.sims.items()
         ]
         self._by_sim = {id(robot.sim): robot for robot in self.robots}
-        self._unpublished: list[tuple[JointState, Odometry, Imu]] | None = None
+        self._unpublished: list[States] | None = None
         """States an advance read, put once its client has the reply (physics lock held)."""
+        self.commands = WorldCommands(self.robots)
+        """Takes every robot's commands on one thread (world_commands.py)."""
+        self.publisher = StatePublisher(world.reader, self._put_all)
+        """Puts the loop's states from a thread of its own (world_states.py)."""
+        for robot in self.robots:  # a robot's own puts (reset, ctl/step) wait for the states queued before them
+            robot.before_direct_put = self.publisher.drain
         self.refusals = Refusals(logger, "world request")
         self.lockstep = settings.clock == "lockstep"
         self.advance_cap_bytes = WORLD_INPUT_CAP_BYTES + sum(vector_cap_bytes(sim.robot.joint_names)
@@ -278,6 +254,8 @@ class WorldService:
             session.declare_queryable(keys.world_advance, self._verb(keys.world_advance, WorldAdvanceRequest,
                                                                      self._advance, self.advance_cap_bytes)),
         ]
+        for robot in self.robots:  # alive/sim last: a client that saw it finds the world's verbs served too
+            robot.announce()
 
     # --- the world's verbs ---------------------------------------------------------------------
 
@@ -370,20 +348,29 @@ class WorldService:
         return self._take_reply_state()
 
     def _publish_states(self) -> None:
-        """(physics lock held) Every robot's states of this instant (one read of MjData for all)."""
+        """(physics lock held) Every robot's states of this instant, put now (after those queued before)."""
         self._put_states(self._read_states())
 
-    def _read_states(self) -> list[tuple[JointState, Odometry, Imu]]:
-        """(physics lock held) Every robot's next-numbered states of this instant, not yet published."""
+    def _take_frame(self) -> Frame:
+        """(physics lock held) Every robot's next-numbered figures of this instant (one read of MjData for all)."""
         robots = self.robots
         for robot in robots:
             robot.seq += 1
-        return self.world.reader.read(self.world.data, [r.seq for r in robots])
+        return self.world.reader.take(self.world.data, [r.seq for r in robots])
 
-    def _put_states(self, states: list[tuple[JointState, Odometry, Imu]]) -> None:
-        """(physics lock held) Publish what _read_states read, on each robot's keys."""
+    def _read_states(self) -> list[States]:
+        """(physics lock held) Every robot's next-numbered states of this instant, not yet published."""
+        return self.world.reader.messages(self._take_frame())
+
+    def _put_states(self, states: list[States]) -> None:
+        """(physics lock held) Put what _read_states read, on each robot's keys, after the queued frames."""
+        self.publisher.drain()
+        self._put_all(states)
+
+    def _put_all(self, states: list[States]) -> None:
+        """Put every robot's states of one instant on its keys (the publisher thread, or a drained queue)."""
         for robot, (joints, odom, imu) in zip(self.robots, states):
-            robot._publish_messages(joints, odom, imu)
+            robot.put_states(joints, odom, imu)
 
     def _advance(self, request: WorldAdvanceRequest) -> WorldAdvanceReply | CtlReply:
         """(physics lock held, on the query's thread) Every command checked first, then all applied, then one advance."""
@@ -424,8 +411,9 @@ class WorldService:
 
     def _run_jobs(self) -> None:
         """(loop thread) Every waiting request: the world's, then each robot's."""
-        while self.requests.run_next(0.0, self._run_request):
-            pass
+        if not self.requests.empty():  # the common case, without raising queue.Empty
+            while self.requests.run_next(0.0, self._run_request):
+                pass
         for robot in self.robots:
             robot._run_jobs()
 
@@ -487,15 +475,20 @@ class WorldService:
             with self.physics:
                 if publish_due and (not wall_clock_states or now >= next_publish):
                     next_publish = now + publish_period_s
-                    self._publish_states()
+                    frame = self._take_frame()
+                    self.publisher.submit(frame)  # built and put on the publisher thread, during the next steps
+                    fallen = world.fallen(frame)
                     if not clock.paused:
-                        for robot in robots:
-                            robot._check_fall()
+                        for robot, robot_fallen in zip(robots, fallen):
+                            robot._check_fall(robot_fallen)
                 if now >= next_status:
                     wall = now - last_status_wall
                     rtf = (float(world.data.time) - last_status_sim) / wall if wall > 0 else 0.0
-                    for robot in robots:
-                        robot._publish_status(max(rtf, 0.0))
+                    fallen = world.fallen(world.reader.take(world.data, [r.seq for r in robots]))
+                    jitter = clock.pacer.jitter_p99_s()  # the world's one pacer: read once, told to every robot
+                    for robot, robot_fallen in zip(robots, fallen):
+                        robot._publish_status(max(rtf, 0.0), robot_fallen, jitter)
+                        robot._snapshot = robot._take_snapshot()  # for replies made off the loop
                     last_status_wall, last_status_sim = now, float(world.data.time)
                     next_status = now + status_period_s
                 self._last = self._take_reply_state()
@@ -503,6 +496,8 @@ class WorldService:
     def close(self) -> None:
         for entity in self._declared:
             entity.undeclare()
+        self.commands.close()
+        self.publisher.close()
         self.requests.close("the world is shutting down")
         for robot in self.robots:
             robot.close()

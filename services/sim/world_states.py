@@ -1,0 +1,171 @@
+"""Every robot's states of one instant in a world: read from MjData in one pass, put from a thread of their own.
+
+The world's loop holds the physics lock while it steps and reads. Reading is a handful of numpy
+gathers for all robots at once (`StateReader.take`: a `Frame` of plain arrays, copies, so MjData may
+step on). Turning a frame into three messages per robot, encoding and putting them is Python work
+that grows with the robot count (a fifth of a 32-G1 world's loop, benchmarks/world_profile.py);
+`StatePublisher` does it on a thread of its own. MuJoCo releases the GIL inside mj_step, so that work
+runs on the other core while the loop steps the next instant, instead of after it.
+
+Order is kept: frames go out oldest first, and a state put by any other path (a reset, ctl/step,
+world/advance) waits for the frames before it (`StatePublisher.drain`), so `seq` never goes back.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from zensim.common.logs import RateLimitedLog
+from zensim.schemas import Imu, JointState, Odometry
+
+from .physics import Simulation
+
+logger = logging.getLogger("zensim.sim")
+
+States = tuple[JointState, Odometry, Imu]
+"""One robot's messages of one instant."""
+
+MAX_BACKLOG = 10
+"""Frames that may wait for the publisher thread (100 ms of states at 100 Hz); past it the oldest is
+dropped and counted: a late state is worth less than a current one, and memory stays bounded."""
+DRAIN_TIMEOUT_S = 1.0
+"""Longest a direct put waits for the frames before it (a put never blocks that long: zenoh drops)."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Every robot's measured figures of one instant, as arrays owned by nobody else (copies of MjData's)."""
+
+    sim_time_s: float
+    seqs: tuple[int, ...]
+    q: np.ndarray
+    dq: np.ndarray
+    tau: np.ndarray
+    sensors: dict[str, np.ndarray]
+    """Each sensor of StateReader.SENSORS, one row per robot."""
+
+    def tilts_rad(self) -> np.ndarray:
+        """Each robot's base tilt from upright, rad (as mjdata.base_tilt_rad, for all robots at once)."""
+        quat = self.sensors["base_quat"]
+        norm2 = np.einsum("ij,ij->i", quat, quat)
+        cos_tilt = 1.0 - 2.0 * (quat[:, 1] ** 2 + quat[:, 2] ** 2) / norm2
+        return np.arccos(np.clip(cos_tilt, -1.0, 1.0))
+
+
+class StateReader:
+    """Reads every robot's JointState, Odometry and Imu of one instant from the world's MjData in a few array
+    operations (one gather per field for all robots, then list slices), not three per robot.
+
+    The same figures as Simulation.joint_state / odometry / imu (the body-frame angular velocity is the
+    world one turned by the base's inverse orientation, here for all robots at once)."""
+
+    SENSORS = ("base_pos", "base_quat", "base_linvel", "base_angvel", "imu_quat", "imu_gyro", "imu_accel")
+
+    def __init__(self, sims: Sequence[Simulation]) -> None:
+        robots = [sim.robot for sim in sims]
+        self.qpos = np.concatenate([r.qpos_adr for r in robots])
+        self.dof = np.concatenate([r.dof_adr for r in robots])
+        ends = np.cumsum([r.nu for r in robots])
+        self.spans = list(zip([0, *ends[:-1].tolist()], ends.tolist()))
+        self.sensors = {name: np.stack([np.arange(r.sensor_slices[name].start, r.sensor_slices[name].stop)
+                                        for r in robots]) for name in self.SENSORS}
+
+    def take(self, data: mujoco.MjData, seqs: Sequence[int]) -> Frame:
+        """(physics lock held) This instant's figures; fancy indexing copies, so the frame outlives the step."""
+        sensordata = data.sensordata
+        return Frame(float(data.time), tuple(seqs), data.qpos[self.qpos], data.qvel[self.dof],
+                     data.qfrc_actuator[self.dof], {name: sensordata[idx] for name, idx in self.sensors.items()})
+
+    def messages(self, frame: Frame) -> list[States]:
+        """Each robot's messages of a frame, in the order of the sims given (any thread)."""
+        t, s = frame.sim_time_s, frame.sensors
+        q, dq, tau = frame.q.tolist(), frame.dq.tolist(), frame.tau.tolist()
+        ang_body = _rotate_by_inverse(s["base_quat"], s["base_angvel"])
+        pos, quat, lin, ang = s["base_pos"].tolist(), s["base_quat"].tolist(), s["base_linvel"].tolist(), ang_body.tolist()
+        imu_quat, gyro, accel = s["imu_quat"].tolist(), s["imu_gyro"].tolist(), s["imu_accel"].tolist()
+        return [(JointState(sim_time_s=t, seq=seq, q=q[a:b], dq=dq[a:b], tau=tau[a:b]),
+                 Odometry(sim_time_s=t, seq=seq, pos=pos[i], quat_wxyz=quat[i], lin_vel_world=lin[i], ang_vel_body=ang[i]),
+                 Imu(sim_time_s=t, seq=seq, quat_wxyz=imu_quat[i], gyro=gyro[i], accel=accel[i]))
+                for i, ((a, b), seq) in enumerate(zip(self.spans, frame.seqs))]
+
+    def read(self, data: mujoco.MjData, seqs: Sequence[int]) -> list[States]:
+        """(physics lock held) take and messages in one go."""
+        return self.messages(self.take(data, seqs))
+
+
+def _rotate_by_inverse(quat_wxyz: np.ndarray, vec: np.ndarray) -> np.ndarray:
+    """Each row of `vec` turned by the inverse of each unit quaternion (as mju_rotVecQuat with the conjugate)."""
+    w = quat_wxyz[:, :1]
+    u = -quat_wxyz[:, 1:]
+    t = 2.0 * np.cross(u, vec)
+    return vec + w * t + np.cross(u, t)
+
+
+class StatePublisher:
+    """Puts the frames the loop hands over, oldest first, from a thread of its own.
+
+    Args:
+        reader: turns a frame into messages.
+        put: puts one instant's messages of every robot (in the reader's robot order).
+    """
+
+    def __init__(self, reader: StateReader, put: Callable[[list[States]], None]) -> None:
+        self._reader = reader
+        self._put = put
+        self._frames: deque[Frame] = deque()
+        self._busy = False
+        self._closed = False
+        self._ready = threading.Condition()
+        self.dropped = 0
+        """Frames dropped unput because the thread was MAX_BACKLOG frames behind (under the condition's lock)."""
+        self._drop_log = RateLimitedLog(logger)
+        self._fail_log = RateLimitedLog(logger)
+        self._thread = threading.Thread(target=self._run, name="sim-states", daemon=True)
+        self._thread.start()
+
+    def submit(self, frame: Frame) -> None:
+        """Queue a frame (returns at once); the oldest is dropped when MAX_BACKLOG wait already."""
+        with self._ready:
+            if len(self._frames) >= MAX_BACKLOG:
+                self._frames.popleft()
+                self.dropped += 1
+                self._drop_log.warning("states of %d robots dropped unput: the publisher thread is %d frames "
+                                       "behind (%d dropped so far)", len(frame.seqs), MAX_BACKLOG, self.dropped)
+            self._frames.append(frame)
+            self._ready.notify_all()
+
+    def drain(self) -> None:
+        """Wait until every frame queued so far has been put (before a state goes out by another path)."""
+        with self._ready:
+            if not self._ready.wait_for(lambda: self._closed or not (self._frames or self._busy), DRAIN_TIMEOUT_S):
+                logger.warning("the state publisher thread did not finish within %.1f s", DRAIN_TIMEOUT_S)
+
+    def _run(self) -> None:
+        while True:
+            with self._ready:
+                self._busy = False
+                self._ready.notify_all()
+                self._ready.wait_for(lambda: self._closed or self._frames)
+                if self._closed:
+                    return
+                frame = self._frames.popleft()
+                self._busy = True
+            try:
+                self._put(self._reader.messages(frame))
+            except Exception:  # a failed put must not end the states of every robot
+                self._fail_log.exception("putting a world's states failed")
+
+    def close(self) -> None:
+        """Put what is queued, then end the thread."""
+        self.drain()
+        with self._ready:
+            self._closed = True
+            self._ready.notify_all()
+        self._thread.join(DRAIN_TIMEOUT_S)
