@@ -8,9 +8,10 @@ the controller. Measured in one run, per count:
 
 - world/advance: round trip p50 / p99 (msgpack; a new command for every robot at every advance),
   advances/s, sim seconds per wall second and robot-steps per second;
-- physics alone: World.step of the same 10 steps for the same robots in this process (no network);
+- physics alone: World.step of the same 10 steps for the same robots in this process (no network),
+  one after each advance;
 - bare zenoh get of the same payload sizes (request and reply bytes of a world/advance) to the echo
-  process: p50;
+  process, one after each advance (side by side: both see the same machine): p50;
 - overhead ratio: (advance p50 - physics p50) / bare get p50 (1.0 = no cost beyond zenoh's own).
 """
 
@@ -97,8 +98,9 @@ def main() -> None:
                 world = load_world(SimSettings(world=str(path)))  # the same robots, for the physics alone
                 default_q = next(iter(world.sims.values())).robot.default_q
                 trips: list[float] = []
-                sizes = (0, 0)
-                start = time.perf_counter()
+                bare: list[float] = []
+                physics: list[float] = []
+                advancing = 0.0
                 for i in range(args.advances + 20):
                     q = (default_q + 0.1 * math.sin(0.05 * i)).tolist()
                     request = WorldAdvanceRequest(commands={rid: MotorCommand(q=q) for rid in ids})
@@ -107,30 +109,24 @@ def main() -> None:
                     got = list(session.get(key, payload=payload, encoding=msgpack, timeout=10))
                     body = got[0].ok.payload.to_bytes()
                     reply = reply_codec.decode(body, "application/msgpack")
-                    if i >= 20:
-                        trips.append(time.perf_counter() - t0)
-                    else:
-                        start = time.perf_counter()
+                    t1 = time.perf_counter()
                     assert reply.ok, reply.error
-                    sizes = (len(payload), len(body))
-                wall = time.perf_counter() - start
-                sim.stop()
-                physics = []
-                for _ in range(200):
-                    t0 = time.perf_counter()
-                    world.step(LOCKSTEP_STEPS)
-                    physics.append(time.perf_counter() - t0)
-                bare = []
-                for i in range(args.advances + 20):
-                    t0 = time.perf_counter()
-                    got = list(session.get(f"{root}/bench/echo?size={sizes[1]}", payload=bytes(sizes[0]), timeout=10))
-                    assert len(got[0].ok.payload.to_bytes()) == sizes[1]
+                    # The same sizes to the echo process at once, so both round trips see the same machine.
+                    echo = list(session.get(f"{root}/bench/echo?size={len(body)}", payload=bytes(len(payload)), timeout=10))
+                    assert len(echo[0].ok.payload.to_bytes()) == len(body)
+                    t2 = time.perf_counter()
+                    world.step(LOCKSTEP_STEPS)  # and the physics of one advance, here, alone
                     if i >= 20:
-                        bare.append(time.perf_counter() - t0)
+                        trips.append(t1 - t0)
+                        bare.append(t2 - t1)
+                        physics.append(time.perf_counter() - t2)
+                        advancing += t1 - t0
+                    sizes = (len(payload), len(body))
+                sim.stop()
                 p50, p99 = percentiles(trips)
                 phys50 = float(np.percentile(physics, 50))
                 bare50 = float(np.percentile(bare, 50))
-                rate = args.advances / wall
+                rate = args.advances / advancing  # advances per second of advancing (the echo gets left out)
                 print(f"| {n} | {p50 * 1e3:.2f} / {p99 * 1e3:.2f} | {rate:.0f} | {rate * LOCKSTEP_STEPS * 0.002:.1f} | "
                       f"{rate * LOCKSTEP_STEPS * n:.0f} | {phys50 * 1e3:.2f} | {bare50 * 1e3:.2f} ({sizes[0]}/{sizes[1]}) | "
                       f"{(p50 - phys50) / bare50:.2f} |", flush=True)

@@ -81,8 +81,8 @@ class Checked(NamedTuple):
     """A command checked against one build of the robot (Simulation.check_command)."""
 
     robot: Robot
-    idx: np.ndarray
-    """The joints it addresses, canonical indices."""
+    idx: np.ndarray | slice
+    """The joints it addresses: canonical indices, or a slice of all of them."""
     q: np.ndarray
     """Its targets, clamped to the joint limits."""
     kp: np.ndarray
@@ -196,6 +196,9 @@ class Simulation:
         velocity = np.where(np.isfinite(velocity) & (velocity > 0), velocity, FALLBACK_VELOCITY_LIMIT)
         self._max_tau = TAU_LIMIT_FACTOR * effort
         self._max_dq = DQ_LIMIT_FACTOR * velocity
+        self._q_far_low = robot.q_min - Q_RANGE_MARGIN_RAD
+        self._q_far_high = robot.q_max + Q_RANGE_MARGIN_RAD
+        """Targets beyond these are refused; between them and the range, clamped."""
 
     @property
     def mode(self) -> Mode:
@@ -265,20 +268,22 @@ class Simulation:
         if not low <= request.base_height_m <= high:
             raise CommandError(f"`base_height_m` {request.base_height_m:g} is outside [{low:.3g}, {high:.3g}] m")
 
-    def _check_range(self, field: str, idx: np.ndarray, q: np.ndarray) -> None:
+    def _check_range(self, field: str, idx: np.ndarray | slice, q: np.ndarray) -> None:
         robot = self.robot
-        far = (q < robot.q_min[idx] - Q_RANGE_MARGIN_RAD) | (q > robot.q_max[idx] + Q_RANGE_MARGIN_RAD)
-        if np.any(far):
+        far = (q < self._q_far_low[idx]) | (q > self._q_far_high[idx])
+        if far.any():
             i = int(np.flatnonzero(far)[0])
-            raise CommandError(f"`{field}` of {robot.joint_names[idx[i]]} is {q[i]:g}, more than a full turn "
-                               f"outside its range [{robot.q_min[idx[i]]:.3g}, {robot.q_max[idx[i]]:.3g}]")
+            j = int(np.arange(robot.nu)[idx][i])
+            raise CommandError(f"`{field}` of {robot.joint_names[j]} is {q[i]:g}, more than a full turn "
+                               f"outside its range [{robot.q_min[j]:.3g}, {robot.q_max[j]:.3g}]")
 
-    def _check_bound(self, field: str, idx: np.ndarray, values: np.ndarray, bound: np.ndarray, what: str) -> None:
+    def _check_bound(self, field: str, idx: np.ndarray | slice, values: np.ndarray, bound: np.ndarray, what: str) -> None:
         over = np.abs(values) > bound[idx]
-        if np.any(over):
+        if over.any():
             i = int(np.flatnonzero(over)[0])
-            raise CommandError(f"`{field}` of {self.robot.joint_names[idx[i]]} is {values[i]:g}, beyond "
-                               f"{bound[idx[i]]:.4g} ({what})")
+            j = int(np.arange(self.robot.nu)[idx][i])
+            raise CommandError(f"`{field}` of {self.robot.joint_names[j]} is {values[i]:g}, beyond "
+                               f"{bound[j]:.4g} ({what})")
 
     # --- commands --------------------------------------------------------
 
@@ -306,17 +311,24 @@ class Simulation:
         if checked is None or checked.robot is not robot:  # unchecked, or checked against a model since rebuilt
             checked = self._checked(command)
         idx, clipped, kp, kd, n_clamped = checked.idx, checked.q, checked.kp, checked.kd, checked.clamped
+        whole = None
+        if isinstance(idx, slice):  # every joint: nothing of the held command stays, so it is made unlocked
+            zeros = np.zeros(robot.nu)  # MotorTargets' arrays are never written after it is made: shared safely
+            whole = MotorTargets(clipped, zeros if command.dq is None else np.asarray(command.dq, float), kp, kd,
+                                 zeros if command.tau is None else np.asarray(command.tau, float))
         with self._lock:
             if robot is not self.robot:  # the model was rebuilt meanwhile
                 raise CommandError("the model changed while the command was checked; send it again")
-            base = self._targets
-            q, dq, kp_all, kd_all, tau = base.q.copy(), base.dq.copy(), base.kp.copy(), base.kd.copy(), base.tau.copy()
-            q[idx] = clipped
-            dq[idx] = 0.0 if command.dq is None else command.dq
-            kp_all[idx] = kp
-            kd_all[idx] = kd
-            tau[idx] = 0.0 if command.tau is None else command.tau
-            self._targets = MotorTargets(q, dq, kp_all, kd_all, tau)  # complete before it is made: it derives from them
+            if whole is None:  # some joints: merged into the held command, which another command may replace
+                base = self._targets
+                q, dq, kp_all, kd_all, tau = base.q.copy(), base.dq.copy(), base.kp.copy(), base.kd.copy(), base.tau.copy()
+                q[idx] = clipped
+                dq[idx] = 0.0 if command.dq is None else command.dq
+                kp_all[idx] = kp
+                kd_all[idx] = kd
+                tau[idx] = 0.0 if command.tau is None else command.tau
+                whole = MotorTargets(q, dq, kp_all, kd_all, tau)  # complete before it is made: it derives from them
+            self._targets = whole
             self._last_command_wall = time.monotonic()
             self._watchdog_on = False
             if n_clamped:
@@ -333,18 +345,21 @@ class Simulation:
         """The robot checked against, the joints a command addresses, its targets clamped to the joint
         limits, its gains, and how many targets were clamped."""
         robot = self.robot
+        # Numpy methods and ufuncs rather than np.any / np.clip (Python wrappers around them): on 29 values
+        # the call overhead is the cost, and a world checks every robot's command of every advance.
+        idx: np.ndarray | slice
         if command.names is None:
             if len(command.q) != robot.nu:
                 raise CommandError(f"`q` has {len(command.q)} values, the robot has {robot.nu} joints")
-            idx = np.arange(robot.nu)
+            idx = slice(None)  # every joint: a slice selects without copying
         else:
             idx = self._indices(command.names)
         q = np.asarray(command.q, float)
         kp = robot.kp[idx] if command.kp is None else np.asarray(command.kp, float)
         kd = robot.kd[idx] if command.kd is None else np.asarray(command.kd, float)
-        if np.any(kp > self.limits.max_kp):
+        if (kp > self.limits.max_kp).any():
             raise CommandError(f"`kp` above the limit {self.limits.max_kp}")
-        if np.any(kd > self.limits.max_kd):
+        if (kd > self.limits.max_kd).any():
             raise CommandError(f"`kd` above the limit {self.limits.max_kd}")
         self._check_range("q", idx, q)
         if command.dq is not None:
@@ -353,7 +368,7 @@ class Simulation:
         if command.tau is not None:
             self._check_bound("tau", idx, np.asarray(command.tau, float), self._max_tau,
                               f"{TAU_LIMIT_FACTOR:g} x the effort limit")
-        clipped = np.clip(q, robot.q_min[idx], robot.q_max[idx])
+        clipped = np.minimum(np.maximum(q, robot.q_min[idx]), robot.q_max[idx])
         n_clamped = int(np.count_nonzero(clipped != q))
         return Checked(robot, idx, clipped, kp, kd, n_clamped)
 

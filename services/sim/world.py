@@ -150,9 +150,11 @@ class World:
         for sim in self._sims:  # lockstep: time stands still between advances, so silence is no fault
             sim.watchdog_enabled = settings.clock == "realtime"
         floating = [sim.robot for sim in self._sims if sim.robot.free_qpos_adr >= 0]
-        self._free = (np.array([r.free_qpos_adr for r in floating], int), np.array([r.free_dof_adr for r in floating], int),
+        self._free = (np.array([r.free_qpos_adr + 2 for r in floating], int),
+                      np.array([r.free_dof_adr for r in floating], int)[:, None] + np.arange(3),
                       np.array([r.base_height_m + MAX_BASE_RISE_M for r in floating]))
-        """Free joints' qpos and dof addresses, and the highest sound base of each floating robot."""
+        """Each floating robot's base height in qpos, its linear velocity in qvel (rows of 3), and its
+        highest sound base height."""
         self.reader = StateReader(self._sims)
         self._next_watchdog_check = 0.0
         self._fall_tilt_rad = np.array([sim.robot.control.model.fall_tilt_rad if sim.mode == "floating" else np.inf
@@ -184,12 +186,13 @@ class World:
     def broken_sims(self) -> list[Simulation]:
         """(physics lock held) The robots whose state cannot be trusted (Simulation.broken), checked for all
         robots at once first: only when something is off does each robot look at itself."""
-        data, free = self.data, self._free
-        sound = np.isfinite(data.qpos).all() and np.isfinite(data.qvel).all()
-        if sound and len(free[0]):
-            heights = data.qpos[free[0] + 2]
-            speeds = np.linalg.norm(data.qvel[free[1][:, None] + np.arange(3)], axis=1)
-            sound = bool((heights <= free[2]).all() and (speeds <= MAX_BASE_SPEED_M_S).all())
+        data, (heights_at, velocities_at, highest) = self.data, self._free
+        qpos, qvel = data.qpos, data.qvel
+        sound = np.isfinite(qpos).all() and np.isfinite(qvel).all()
+        if sound and len(heights_at):
+            velocities = qvel[velocities_at]
+            speeds2 = np.einsum("ij,ij->i", velocities, velocities)
+            sound = bool((qpos[heights_at] <= highest).all() and (speeds2 <= MAX_BASE_SPEED_M_S ** 2).all())
         return [] if sound else [sim for sim in self._sims if sim.broken()]
 
     def fallen(self, frame: Frame) -> list[bool]:
@@ -302,8 +305,8 @@ class WorldService:
                         message = self._reply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}"))
                     answer(query, message)
                     query.drop()
-                    if self._unpublished is not None:
-                        self._put_states(self._unpublished)
+                    if self._unpublished is not None:  # put by the publisher thread, while the client reads
+                        self.publisher.submit(self._unpublished)
                     self._last = self._take_reply_state()
                 return
             self.requests.submit(Request(query, lambda: handler(request), answer))
