@@ -19,7 +19,7 @@ import zenoh
 
 from browser import Browser, chromium_binary
 from support import TWO_JOINT_ARM, Latest, Service, ctl, free_port, wait_for
-from zensim.schemas import JointState, Keys, Odometry, SimStatus
+from zensim.schemas import Codec, JointState, Keys, Odometry, SimStatus, WorldInfo
 
 SPACING_M = 1.0
 """G1 `b` stands this far in front of `a`, facing it: apart they both stand, leaning over `b` reaches `a`."""
@@ -169,8 +169,11 @@ def test_world_verbs_pause_step_resume_and_reset_every_robot(
     # Refused, nothing done: world/reset takes no pose; a wildcard reaches every verb and none acts.
     refused = ctl(zsession, keys.world_reset, {"base_height_m": 0.8})
     assert not refused["ok"] and "empty request" in refused["error"]
-    for reply in zsession.get(f"{keys.root}/world/*", payload=b"{}", timeout=5):
-        assert not json.loads(reply.ok.payload.to_bytes())["ok"]
+    replies = list(zsession.get(f"{keys.root}/world/*", payload=b"{}", timeout=5))
+    verbs = [json.loads(reply.ok.payload.to_bytes()) for reply in replies if reply.ok is not None]
+    assert len(verbs) == 5 and not any(verb["ok"] for verb in verbs), verbs
+    assert [reply.err.payload.to_string() for reply in replies if reply.ok is None] == [
+        f"answers only a query for exactly {keys.world_info}"]  # world/info: an error, not a list
     assert not status[world["a"]].value.paused
     # world/reset: time back to 0, every robot a new episode.
     episodes = {r: status[r].value.episode for r in ids}
@@ -227,3 +230,36 @@ def test_world_lockstep_advances_all_robots_in_one_round_trip_bit_identical_acro
             a, b = one.states[rid], two.states[rid]
             assert (a.joints.q, a.joints.dq, a.joints.tau, a.odom.pos, a.odom.quat_wxyz, a.imu.accel) == \
                    (b.joints.q, b.joints.dq, b.joints.tau, b.odom.pos, b.odom.quat_wxyz, b.imu.accel)
+
+
+def test_world_info_lists_the_robots_and_answers_only_its_exact_key(
+    start_service: Callable[..., Service], zsession: zenoh.Session, world: dict[str, str]
+) -> None:
+    """world/info names every robot of the world (the viewer's `--world` draws them from it); a wildcard
+    query or an oversize payload gets an error reply, counted like the world's other refusals."""
+    sim = start_service("sim", "--world", world["file"])
+    keys = Keys(world["world"])
+    wait_for(lambda: list(zsession.liveliness().get(Keys(world["arm"]).alive("sim"), timeout=1)), 60, "the world up")
+    codec = Codec(WorldInfo)
+    info = wait_for(lambda: next((codec.decode(r.ok.payload.to_bytes(), str(r.ok.encoding))
+                                  for r in zsession.get(keys.world_info, timeout=5) if r.ok is not None), None),
+                    30, "world/info answered")
+    assert info.world == world["world"]
+    assert [(r.robot, r.model, r.mode, r.xy, r.yaw_deg) for r in info.robots] == [
+        (world["a"], "g1_29dof", "floating", (0.0, 0.0), 0.0),
+        (world["b"], "g1_29dof", "floating", (SPACING_M, 0.0), 180.0),
+        (world["arm"], "two_joint_arm", "fixed", (0.0, 3.0), 0.0)]
+    as_json = next(iter(zsession.get(keys.world_info + "?format=json", timeout=5))).ok
+    assert str(as_json.encoding).startswith("application/json")
+    assert json.loads(as_json.payload.to_bytes())["robots"][2]["robot"] == world["arm"]
+
+    for wildcard in (f"{keys.root}/world/*", f"{keys.root}/**", "zensim/*/world/info"):
+        replies = [r for r in zsession.get(wildcard, timeout=5)
+                   if (r.ok.key_expr if r.ok is not None else None) in (None, keys.world_info)]
+        errors = [r.err.payload.to_string() for r in replies if r.ok is None]
+        assert not [r for r in replies if r.ok is not None], f"{wildcard}: world/info listed the world"
+        assert f"answers only a query for exactly {keys.world_info}" in errors, (wildcard, errors)
+    oversize = list(zsession.get(keys.world_info, payload=b"x" * 5000, timeout=5))
+    assert oversize[0].ok is None and "over this key's cap" in oversize[0].err.payload.to_string()
+    wait_for(lambda: "rejected world request on" in sim.log(), 5, "the refusals logged")
+    assert sim.alive()
