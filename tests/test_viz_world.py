@@ -41,6 +41,7 @@ def test_at_most_64_robots_are_shown_and_the_rest_counted() -> None:
 @pytest.mark.parametrize("ids, why", [
     (["a", "b", "a"], "names robot 'a' twice"),
     (["a", "b\n"], "robot id"),  # passes the schema's `^...$`, not a key chunk
+    ([], "no robot"),
 ])
 def test_a_bad_or_repeated_id_refuses_the_whole_reply(ids: list[str], why: str) -> None:
     with pytest.raises(ValueError, match=why):

@@ -11,8 +11,9 @@ pose from the robot's own state/odom and state/joints: two G1s spawned a metre a
 metre apart.
 
 A reply is checked before anything is fetched for it: at most MAX_ROBOTS robots are shown (the rest
-are left out, said on the page and in the log), every id must be a robot id and none may come twice
-(else the reply is refused), and everything fetched for one world is capped at FETCH_BUDGET_BYTES.
+are left out, said on the page and in the log), every id must be a robot id, none may come twice and
+there must be one (else the reply is refused), and everything fetched for one world is capped at
+FETCH_BUDGET_BYTES.
 """
 
 from __future__ import annotations
@@ -57,8 +58,10 @@ def checked_robots(info: WorldInfo) -> tuple[list[WorldRobot], int]:
     """The robots of `info` to show, and how many are left out past MAX_ROBOTS.
 
     Raises:
-        ValueError: an id that is not a robot id, or a robot named twice.
+        ValueError: no robot, an id that is not a robot id, or a robot named twice.
     """
+    if not info.robots:
+        raise ValueError("world/info lists no robot")  # a world file holds at least one
     seen: set[str] = set()
     for robot in info.robots:
         check_robot_id(robot.robot)  # the schema's pattern, and no trailing newline
