@@ -50,7 +50,6 @@ from zensim.schemas import (
     Codec,
     CtlReply,
     JointTargets,
-    Keys,
     ModeRequest,
     PauseRequest,
     ResetRequest,
