@@ -115,6 +115,8 @@ function onRobot(msg) {
 // Every robot is drawn at its own pose; the panel (sliders, buttons, status, plots, the ghost) acts on
 // the one selected here, and the viz is told which (`select`), so what it sends back is that robot's.
 
+let worldFramed = false;
+
 function onWorld(msg) {
   for (const robot of msg.robots) {
     if (robot.copy_of) {
@@ -134,7 +136,8 @@ function onWorld(msg) {
     select.append(option);
   }
   $("robot-choice").hidden = false;
-  frameWorld(msg.robots);
+  if (!worldFramed) frameWorld(msg.robots);   // once: a later scene (the world restarted) keeps the user's view
+  worldFramed = true;
   const kept = msg.robots.some((r) => r.id === state.selected) ? state.selected : msg.robots[0].id;
   state.selected = null;
   selectRobot(kept);
