@@ -32,6 +32,8 @@ from .messages import (
     RobotStates,
     WorldAdvanceReply,
     WorldAdvanceRequest,
+    WorldInfo,
+    WorldRobot,
     SimStatus,
     StepRequest,
     UnitreeStatus,
@@ -46,4 +48,5 @@ __all__ = [
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
     "UnitreeStatus",
     "AdvanceReply", "AppliedCommand", "Ros1Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
+    "WorldInfo", "WorldRobot",
 ]

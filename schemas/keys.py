@@ -64,6 +64,7 @@ class Keys:
     world_step: str
     world_reset: str
     world_advance: str
+    world_info: str
     robot_info: str
     urdf: str
     mesh_any: str

@@ -19,7 +19,7 @@ joint count, limits) belong to the service that knows the robot.
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Annotated, Literal
 
 import msgspec
 
@@ -490,6 +490,40 @@ class WorldAdvanceReply(Message, frozen=True, tag="world_advance_reply", kw_only
     """Robot id -> its states of the new instant (every robot of the world)."""
 
 
+MAX_WORLD_ROBOTS = 256
+"""Most robots a world holds (a world file's limit), and so the most world/info lists."""
+RobotId = Annotated[str, msgspec.Meta(pattern=r"^[a-z0-9_-]+$")]
+"""A robot or world id as it appears in a key (`zensim/{id}/...`)."""
+
+
+class WorldRobot(Message, frozen=True, tag="world_robot", kw_only=True):
+    """One robot of a world, as world/info lists it."""
+
+    robot: RobotId
+    """Robot id: its keys are under zensim/{robot}/ (its info/robot describes it in full)."""
+    model: str
+    """Name of its description (the URDF's robot name), as RobotInfo.model."""
+    mode: Mode
+    """floating, or fixed (welded on a stand at its spawn)."""
+    xy: tuple[float, float]
+    """Spawn position of its base in the world frame, m (where it stands now: its state/odom)."""
+    yaw_deg: float = 0.0
+    """Spawn heading, degrees about the world's z (0 faces +x)."""
+
+    def __post_init__(self) -> None:
+        _check_finite("xy", self.xy)
+        _check_finite("yaw_deg", (self.yaw_deg,))
+
+
+class WorldInfo(Message, frozen=True, tag="world_info", kw_only=True):
+    """A world of several robots (`zensim sim --world`), served on zensim/{world}/world/info."""
+
+    world: RobotId
+    """The world's id: its own verbs are under zensim/{world}/world/."""
+    robots: Annotated[tuple[WorldRobot, ...], msgspec.Meta(max_length=MAX_WORLD_ROBOTS)]
+    """Every robot of the world, in the world file's order."""
+
+
 # --- edge adapters ------------------------------------------------------------
 
 
@@ -600,5 +634,6 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     Ros1Status,
     WorldAdvanceRequest,
     WorldAdvanceReply,
+    WorldInfo,
 )
 """Every top-level message type, in the order the docs list them."""

@@ -22,6 +22,7 @@ from .messages import (
     AdvanceReply,
     WorldAdvanceReply,
     WorldAdvanceRequest,
+    WorldInfo,
     AppliedCommand,
     BridgeReport,
     CtlReply,
@@ -180,6 +181,9 @@ WORLD_ADVANCE: Final = Topic("world/advance", "queryable", "any client (a contro
 WORLD_RESET: Final = Topic("world/reset", "queryable", "any client", "sim (a world)", "on demand", ResetRequest,
                            CtlReply, note="(every robot to its default pose, world time to 0: an empty request)",
                            name="world_reset")
+WORLD_INFO: Final = Topic("world/info", "queryable", "sim (a world)", "viz (`--world`), anyone", "on demand", WorldInfo,
+                         note="(its robots: ids, models, modes, spawn places; `{robot}` is the world's id; JSON for "
+                              "`?format=json` or a JSON query payload)", name="world_info")
 APPLIED: Final = Topic("state/applied", "publication", "sim", "anyone (the recorder, resim)",
                        "one per lockstep advance", AppliedCommand, name="applied")
 # --- description ------------------------------------------------------------------
@@ -199,7 +203,7 @@ TOPICS: Final[tuple[Topic, ...]] = (
     JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
-    WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE,
+    WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE, WORLD_INFO,
     ROBOT_INFO, URDF, MESH, ALIVE, ROUTER_ALIVE,
 )
 """Every topic, in the order the docs list them."""
@@ -246,13 +250,13 @@ EVERY_ROLE_WATCHES: Final = ("alive/*",)
 ROLES: Final[tuple[Role, ...]] = (
     Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim",)),
     Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
-    Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*"), tokens=("alive/viz",)),
+    Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (and its locomotion controller)", publishes=("cmd/motors", "state/unitree"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/unitree",)),
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
     Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/**",)),
     Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/**",), tokens=("alive/sim", "alive/replay")),
     Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**", "world/*")),
-    Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**",)),
+    Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**", "world/info")),
 )
 """Every role. The router denies everything a role does not list (docs/security.md)."""
 

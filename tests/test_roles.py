@@ -186,6 +186,35 @@ def test_every_service_declares_only_what_its_role_lists(start_service, zsession
     assert {Keys(robot_id + "l").ctl_advance, Keys(robot_id + "l").applied} <= lockstep_keys, lockstep_keys
 
 
+def test_a_world_viewer_declares_only_what_the_viz_role_lists(start_service, zsession, robot_id: str,
+                                                               tmp_path: Path) -> None:
+    """`zensim viz --world`: world/info on the world's id, and each robot's keys as for a robot alone."""
+    from support import TWO_JOINT_ARM
+
+    audit_dir = tmp_path / "audit"
+    audit_dir.mkdir()
+    ids = {"world": robot_id + "w", "g1": robot_id + "a", "arm": robot_id + "b"}
+    (tmp_path / "arm.urdf").write_text(TWO_JOINT_ARM)
+    (tmp_path / "world.toml").write_text(f'id = "{ids["world"]}"\n[[robots]]\nid = "{ids["g1"]}"\n'
+                                         f'[[robots]]\nid = "{ids["arm"]}"\nurdf = "arm.urdf"\nmode = "fixed"\nxy = [0, 2]\n')
+    start_service("sim", "--world", str(tmp_path / "world.toml"))
+    viz_port = free_port()
+    viz = start_service("viz", "--port", str(viz_port), "--world", ids["world"], env=audit_env(audit_dir))
+    wait_for(lambda: "description of world" in viz.log(), 60, "the viz to fetch the world")
+    viz_click(viz_port, "pause")  # the selected (first) robot's ctl/pause
+    wait_for(lambda: "ctl/pause -> ok=True" in viz.log(), 30, "the viz's ctl query answered")
+    viz.stop(15)
+    records = audits(audit_dir)["viz"]
+    by_root: dict[str, list[dict]] = {}
+    for record in records:
+        by_root.setdefault(record["key"].split("/")[1], []).append(record)
+    assert set(by_root) == set(ids.values()) | {"@router"}, sorted(by_root)
+    wrong = [line for robot in ids.values() for line in violations(role("viz"), by_root[robot], robot)]
+    assert not wrong, "\n".join(wrong)
+    assert {r["key"].split("?")[0] for r in by_root[ids["world"]]} == {Keys(ids["world"]).world_info}
+    assert Keys(ids["g1"]).ctl_pause in {r["key"] for r in by_root[ids["g1"]]}
+
+
 ROGUE = """
 import sys, threading
 from zensim.common.session import open_session

@@ -18,6 +18,7 @@ from zensim.schemas import (
     MotorCommand,
     ResetRequest,
     StepRequest,
+    WorldInfo,
     check_robot_id,
     decode_scalar,
     is_json,
@@ -59,6 +60,9 @@ SAMPLES.update({
 SAMPLES["world_advance_request"] = dict(commands={"g1a": SAMPLES["motor_command"]})
 SAMPLES["world_advance_reply"] = dict(ok=True, sim_time_s=0.02, steps=10, states={"g1a": dict(
     joints=SAMPLES["joint_state"], odom=SAMPLES["odometry"], imu=SAMPLES["imu"])})
+# A world's robots, for the viewer (issue 21).
+SAMPLES["world_info"] = dict(world="lab", robots=[dict(robot="g1a", model="g1_29dof", mode="floating", xy=[0.0, 0.0]),
+                                                  dict(robot="arm", model="arm", mode="fixed", xy=[0.0, 3.0], yaw_deg=90.0)])
 # The ROS 1 gateway's status (issue 20).
 SAMPLES["ros1_status"] = dict(seq=4, master_uri="http://127.0.0.1:11311", master_up=True, joint_states_published=400,
                               joint_states_rate_hz=100.0, commands_received=5, commands_forwarded=3, rejected=2,
@@ -139,6 +143,23 @@ def test_step_request_is_bounded() -> None:
     assert Codec(StepRequest).decode(b"").n == 1
     with pytest.raises(DecodeError, match="`n` must be in"):
         Codec(StepRequest).decode(b'{"n": 0}')
+
+
+def _robot(robot: str = "g1a", xy: list[float] = [0.0, 0.0]) -> dict:
+    return dict(robot=robot, model="g1_29dof", mode="floating", xy=xy)
+
+
+@pytest.mark.parametrize("world, robots, why", [
+    ("lab", [_robot("G1")], r"robots\[0\]\.robot"),                            # not a robot id
+    ("lab", [_robot("a/b")], r"robots\[0\]\.robot"),                           # a key chunk cannot hold `/`
+    ("lab/**", [_robot()], r"\$\.world"),
+    ("lab", [_robot(xy=[math.nan, 0.0])], "xy"),
+    ("lab", [_robot(f"r{i}") for i in range(257)], "robots"),                  # past a world file's 256
+])
+def test_world_info_is_bounded(world: str, robots: list[dict], why: str) -> None:
+    assert Codec(WorldInfo).decode(msgspec.msgpack.encode({"world": "lab", "robots": [_robot()]})).robots[0].robot == "g1a"
+    with pytest.raises(DecodeError, match=why):
+        Codec(WorldInfo).decode(msgspec.msgpack.encode({"world": world, "robots": robots}))
 
 
 def test_empty_payload_means_defaults() -> None:

@@ -8,18 +8,21 @@ robots); resetting `b` puts only `b` back. The world's own verbs pause, step and
 
 from __future__ import annotations
 
+import io
 import json
+import os
 import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zenoh
 
 from browser import Browser, chromium_binary
-from support import TWO_JOINT_ARM, Latest, Service, ctl, free_port, wait_for
-from zensim.schemas import JointState, Keys, Odometry, SimStatus
+from support import REPO, TWO_JOINT_ARM, Latest, Service, ctl, free_port, wait_for
+from zensim.schemas import Codec, JointState, JointTargets, Keys, Odometry, SimStatus, WorldInfo
 
 SPACING_M = 1.0
 """G1 `b` stands this far in front of `a`, facing it: apart they both stand, leaning over `b` reaches `a`."""
@@ -144,6 +147,90 @@ def test_three_robots_one_world_viewer_client_contact_and_reset_one(
     assert sim.alive()
 
 
+def drawn_base(browser: Browser, robot: str) -> list[float]:
+    """Where the page draws `robot`'s base link now (world frame), read from its meshcat scene."""
+    return browser.eval(f"""(() => {{
+        const path = zensim.robot.paths.find((p) => p.startsWith('/robots/{robot}/'));
+        return zensim.linkPosition('robots/{robot}', path.split('/')[3]); }})()""")
+
+
+def ghost_shown(browser: Browser, robot: str) -> bool:
+    return browser.eval(f"viewer.scene_tree.find(['ghosts', '{robot}']).object.visible")
+
+
+def test_world_viewer_draws_every_robot_at_its_place_and_drives_the_selected_one(
+    start_service: Callable[..., Service], zsession: zenoh.Session, world: dict[str, str], browser: Browser
+) -> None:
+    """`zensim viz --world` draws the three robots where the sim has them (world frame: b a metre in front
+    of a, the arm on its stand 3 m to the side); its sliders move the robot picked on the page, and only it."""
+    a, b, arm = world["a"], world["b"], world["arm"]
+    start_service("sim", "--world", world["file"])
+    odom = {r: Latest(zsession, Keys(r).odom, Odometry) for r in (a, b, arm)}
+    joints = {r: Latest(zsession, Keys(r).joints, JointState) for r in (a, b)}
+    sent = {r: Latest(zsession, Keys(r).joint_targets, JointTargets) for r in (a, b)}
+    for r in (a, b, arm):
+        odom[r].wait(timeout_s=60, what=f"{r} running")
+    for r in (a, b):
+        start_service("bridge", env={"ZENSIM_ROBOT_ID": r})
+    port = free_port()
+    viz = start_service("viz", "--port", str(port), "--world", world["world"])
+    browser.goto(f"http://127.0.0.1:{port}/")
+    browser.wait("window.zensim && zensim.sceneReady && zensim.robot.robots && zensim.selected", 120, "the world drawn")
+    listed = browser.eval("zensim.robot.robots.map((r) => [r.id, r.copy_of, r.joints.length])")
+    assert listed == [[a, None, 29], [b, a, 29], [arm, None, 2]], listed
+    # The two G1s share one description: its meshes were fetched and sent once, b's shapes are a's.
+    assert "3 robots, 2 descriptions" in viz.log(), viz.log()[-2000:]
+    assert browser.eval(f"""viewer.scene_tree.find(['robots', '{b}', 'pelvis', 'v0', '<object>']).object.geometry ===
+                            viewer.scene_tree.find(['robots', '{a}', 'pelvis', 'v0', '<object>']).object.geometry""")
+
+    # Every robot is drawn where the sim has it, in the world frame (the fixed arm on its stand).
+    def at_their_places() -> bool:
+        return all(np.linalg.norm(np.subtract(drawn_base(browser, r), odom[r].value.pos)) < 0.05 for r in (a, b, arm))
+
+    wait_for(at_their_places, 30, "every robot drawn at its own pose", interval_s=0.3)
+    spots = {r: drawn_base(browser, r) for r in (a, b, arm)}
+    assert abs(spots[b][0] - spots[a][0] - SPACING_M) < 0.1 and abs(spots[b][1] - spots[a][1]) < 0.1, spots
+    assert abs(spots[arm][1] - spots[a][1] - 3.0) < 0.1 and spots[a][2] > STANDING_Z_M, spots
+
+    # The panel acts on the first robot; its slider moves a alone.
+    elbow = browser.eval("zensim.robot.robots[0].joints.map((j) => j.name)").index("left_elbow_joint")
+    assert browser.eval("zensim.selected") == a
+    b_elbow = joints[b].value.q[elbow]
+    browser.set_slider("slider-left_elbow_joint", 1.2)
+    joints[a].wait(lambda m: abs(m.q[elbow] - 1.2) < 0.08, 20, "a's elbow following the slider")
+    assert abs(joints[b].value.q[elbow] - b_elbow) < 0.05 and sent[b].value is None
+    browser.wait(f"zensim.status && zensim.status.robot === '{a}' && zensim.status.targets", 20, "a's status")
+    browser.wait(f"viewer.scene_tree.find(['ghosts', '{a}']).object.visible", 10, "a's ghost shown")
+    assert not ghost_shown(browser, b)
+
+    # Another robot picked on the page: its slider moves b, and a keeps its pose.
+    browser.select("robot-select", b)
+    browser.wait(f"zensim.status && zensim.status.robot === '{b}' && zensim.status.targets", 20, "b's status")
+    browser.set_slider("slider-left_elbow_joint", -0.5)
+    joints[b].wait(lambda m: abs(m.q[elbow] + 0.5) < 0.08, 20, "b's elbow following the slider")
+    time.sleep(0.5)
+    assert abs(joints[a].value.q[elbow] - 1.2) < 0.08, joints[a].value.q[elbow]
+    assert sent[a].value.names == ("left_elbow_joint",) and abs(sent[a].value.q[0] - 1.2) < 0.01, sent[a].value
+    browser.wait(f"viewer.scene_tree.find(['ghosts', '{b}']).object.visible", 10, "b's ghost shown")
+    assert not ghost_shown(browser, a) and browser.eval("zensim.lastError") is None
+    if os.environ.get("ZENSIM_SAVE_SCREENSHOT"):
+        save_world_screenshot(browser)
+
+
+def save_world_screenshot(browser: Browser) -> None:
+    """docs/world.png: the 3D view of the world and the top of the panel (the robot selector, its status),
+    small enough for the README."""
+    from PIL import Image
+
+    frames = browser.eval("zensim.framesApplied")
+    browser.wait(f"zensim.framesApplied > {frames + 3}", 30, "more frames drawn")
+    with Image.open(io.BytesIO(browser.screenshot())) as shot:
+        view = shot.convert("RGB").crop((0, 0, shot.width, 500))
+        view.thumbnail((900, 900))
+        view = view.quantize(colors=256)
+        view.save(REPO / "docs" / "world.png", optimize=True)
+
+
 def test_world_verbs_pause_step_resume_and_reset_every_robot(
     start_service: Callable[..., Service], zsession: zenoh.Session, world: dict[str, str]
 ) -> None:
@@ -169,8 +256,11 @@ def test_world_verbs_pause_step_resume_and_reset_every_robot(
     # Refused, nothing done: world/reset takes no pose; a wildcard reaches every verb and none acts.
     refused = ctl(zsession, keys.world_reset, {"base_height_m": 0.8})
     assert not refused["ok"] and "empty request" in refused["error"]
-    for reply in zsession.get(f"{keys.root}/world/*", payload=b"{}", timeout=5):
-        assert not json.loads(reply.ok.payload.to_bytes())["ok"]
+    replies = list(zsession.get(f"{keys.root}/world/*", payload=b"{}", timeout=5))
+    verbs = [json.loads(reply.ok.payload.to_bytes()) for reply in replies if reply.ok is not None]
+    assert len(verbs) == 5 and not any(verb["ok"] for verb in verbs), verbs
+    assert [reply.err.payload.to_string() for reply in replies if reply.ok is None] == [
+        f"answers only a query for exactly {keys.world_info}"]  # world/info: an error, not a list
     assert not status[world["a"]].value.paused
     # world/reset: time back to 0, every robot a new episode.
     episodes = {r: status[r].value.episode for r in ids}
@@ -227,3 +317,36 @@ def test_world_lockstep_advances_all_robots_in_one_round_trip_bit_identical_acro
             a, b = one.states[rid], two.states[rid]
             assert (a.joints.q, a.joints.dq, a.joints.tau, a.odom.pos, a.odom.quat_wxyz, a.imu.accel) == \
                    (b.joints.q, b.joints.dq, b.joints.tau, b.odom.pos, b.odom.quat_wxyz, b.imu.accel)
+
+
+def test_world_info_lists_the_robots_and_answers_only_its_exact_key(
+    start_service: Callable[..., Service], zsession: zenoh.Session, world: dict[str, str]
+) -> None:
+    """world/info names every robot of the world (the viewer's `--world` draws them from it); a wildcard
+    query or an oversize payload gets an error reply, counted like the world's other refusals."""
+    sim = start_service("sim", "--world", world["file"])
+    keys = Keys(world["world"])
+    wait_for(lambda: list(zsession.liveliness().get(Keys(world["arm"]).alive("sim"), timeout=1)), 60, "the world up")
+    codec = Codec(WorldInfo)
+    info = wait_for(lambda: next((codec.decode(r.ok.payload.to_bytes(), str(r.ok.encoding))
+                                  for r in zsession.get(keys.world_info, timeout=5) if r.ok is not None), None),
+                    30, "world/info answered")
+    assert info.world == world["world"]
+    assert [(r.robot, r.model, r.mode, r.xy, r.yaw_deg) for r in info.robots] == [
+        (world["a"], "g1_29dof", "floating", (0.0, 0.0), 0.0),
+        (world["b"], "g1_29dof", "floating", (SPACING_M, 0.0), 180.0),
+        (world["arm"], "two_joint_arm", "fixed", (0.0, 3.0), 0.0)]
+    as_json = next(iter(zsession.get(keys.world_info + "?format=json", timeout=5))).ok
+    assert str(as_json.encoding).startswith("application/json")
+    assert json.loads(as_json.payload.to_bytes())["robots"][2]["robot"] == world["arm"]
+
+    for wildcard in (f"{keys.root}/world/*", f"{keys.root}/**", "zensim/*/world/info"):
+        replies = [r for r in zsession.get(wildcard, timeout=5)
+                   if (r.ok.key_expr if r.ok is not None else None) in (None, keys.world_info)]
+        errors = [r.err.payload.to_string() for r in replies if r.ok is None]
+        assert not [r for r in replies if r.ok is not None], f"{wildcard}: world/info listed the world"
+        assert f"answers only a query for exactly {keys.world_info}" in errors, (wildcard, errors)
+    oversize = list(zsession.get(keys.world_info, payload=b"x" * 5000, timeout=5))
+    assert oversize[0].ok is None and "over this key's cap" in oversize[0].err.payload.to_string()
+    wait_for(lambda: "rejected world request on" in sim.log(), 5, "the refusals logged")
+    assert sim.alive()

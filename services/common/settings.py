@@ -139,6 +139,7 @@ AMBIGUOUS_LEGACY: dict[str, tuple[str, ...]] = {
     "ZENSIM_URDF": ("ZENSIM_SIM_URDF", "ZENSIM_BRIDGE_URDF", "ZENSIM_VIZ_URDF"),
     "ZENSIM_ROBOT": ("ZENSIM_SIM_ROBOT", "ZENSIM_BRIDGE_ROBOT"),
     "ZENSIM_CONTROL": ("ZENSIM_SIM_CONTROL", "ZENSIM_BRIDGE_CONTROL"),
+    "ZENSIM_WORLD": ("ZENSIM_SIM_WORLD", "ZENSIM_VIZ_WORLD"),  # a world file for the sim, a world id for the viz
 }
 """First-release names that several services read with different meanings: refused, naming the new ones
 (`ZENSIM_RATE_HZ=500 zensim up` meant the bridge's rate and stopped the viz, whose limit is 240)."""

@@ -68,7 +68,7 @@ from zensim.schemas import (
 )
 from zensim.schemas.bounds import vector_cap_bytes
 from zensim.schemas.codec import Format
-from zensim.schemas.messages import Message, Mode
+from zensim.schemas.messages import Message
 
 from .physics import CommandError, Limits, Simulation
 from .requests import Request, Requests

@@ -6,6 +6,7 @@ on its own key root `zensim/{robot}/...` through an ordinary SimService (service
 messages, ctl verbs, watchdog, bounds and episode as a robot alone, so the bridge, the viewer, the
 recorder and the Unitree adapter work per robot unchanged. What is the world's rather than one
 robot's lives under the world's id: `zensim/{world}/world/pause|resume|step|reset`.
+`zensim/{world}/world/info` lists the world's robots (what `zensim viz --world` draws).
 
 Time is the world's: a robot's ctl/pause, ctl/resume and ctl/step act on the whole world (its
 robots cannot run apart), and a robot's ctl/reset resets only that robot (world time goes on).
@@ -50,6 +51,8 @@ from zensim.schemas import (
     RobotStates,
     WorldAdvanceReply,
     WorldAdvanceRequest,
+    WorldInfo,
+    WorldRobot,
     bounded,
     is_json,
 )
@@ -126,6 +129,7 @@ class World:
 
     def __init__(self, world_file: WorldFile, base: Path, settings: SimSettings) -> None:
         self.id = world_file.id
+        self.entries = tuple(world_file.robots)
         placements = []
         try:
             for entry in world_file.robots:
@@ -206,6 +210,13 @@ class World:
         self.resets += 1
 
 
+def world_info(world: World, robots: list[SimService]) -> WorldInfo:
+    """world/info's answer: the world's id and, for each robot in file order, its model, mode and spawn."""
+    return WorldInfo(world=world.id, robots=tuple(
+        WorldRobot(robot=entry.id, model=robot._info.model, mode=robot._info.mode, xy=entry.xy, yaw_deg=entry.yaw_deg)
+        for entry, robot in zip(world.entries, robots)))
+
+
 def load_world(settings: SimSettings) -> World:
     """Read the world file the settings name and build it (before the session: a bad file fails fast)."""
     assert settings.world is not None
@@ -257,8 +268,30 @@ class WorldService:
             session.declare_queryable(keys.world_advance, self._verb(keys.world_advance, WorldAdvanceRequest,
                                                                      self._advance, self.advance_cap_bytes)),
         ]
+        self.info, self.info_codec = world_info(world, self.robots), Codec(WorldInfo)
+        self._declared.append(session.declare_queryable(keys.world_info, self._on_info))
         for robot in self.robots:  # alive/sim last: a client that saw it finds the world's verbs served too
             robot.announce()
+
+    # --- world/info: what the world holds --------------------------------------------------------
+
+    def _on_info(self, query: zenoh.Query) -> None:
+        """Answer world/info (WorldInfo, made once: a world's robots never change while it runs).
+
+        Exact key only, as the verbs: a reply to a wildcard would not say which world it lists.
+        The payload is never decoded; JSON is asked for as on info/robot (`?format=json` or a JSON payload).
+        """
+        own_key = self.keys.world_info
+        payload = query.payload
+        if payload is not None and len(payload) > WORLD_INPUT_CAP_BYTES:
+            error = f"payload of {len(payload)} bytes is over this key's cap of {WORLD_INPUT_CAP_BYTES} bytes"
+        elif str(query.key_expr) != own_key:
+            error = f"answers only a query for exactly {own_key}"
+        else:
+            json_wanted = "format=json" in str(query.parameters) or (payload is not None and is_json(*payload_of(query)))
+            send(query, own_key, self.info, "json" if json_wanted else "msgpack", self.info_codec)
+            return
+        query.reply_err(self.refusals.refuse(query.key_expr, error).encode())
 
     # --- the world's verbs ---------------------------------------------------------------------
 

@@ -50,7 +50,13 @@ class PagePlot(msgspec.Struct, tag="plot", forbid_unknown_fields=True):
     joints: list[str]
 
 
-PageMessage = PageTargets | PageCtl | PageMode | PagePlot
+class PageSelect(msgspec.Struct, tag="select", forbid_unknown_fields=True):
+    """The robot the panel acts on, in a world's viewer: `{"type": "select", "robot": "g1b"}`."""
+
+    robot: str
+
+
+PageMessage = PageTargets | PageCtl | PageMode | PagePlot | PageSelect
 PAGE_CTL_VERBS: Final = ("reset", "pause", "resume", "step")
 
 
@@ -66,6 +72,13 @@ class PlotRequest:
     """The joints a page wants plotted; none means plotting is off."""
 
     joints: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Select:
+    """The page's robot: its sliders, buttons, status and plots are this robot's from now on."""
+
+    robot: str
 
 
 class JointLimits:
@@ -90,7 +103,7 @@ class JointLimits:
             raise PanelError("a joint is named twice")
 
 
-def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets | Ctl | PlotRequest:
+def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets | Ctl | PlotRequest | Select:
     """Turn one decoded JSON message from the page into a command.
 
     Args:
@@ -98,7 +111,8 @@ def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets 
         limits: the current robot's joints; None before a description arrived.
 
     Returns:
-        JointTargets for `targets`, Ctl for `ctl` and `mode`, PlotRequest for `plot`.
+        JointTargets for `targets`, Ctl for `ctl` and `mode`, PlotRequest for `plot`, Select for `select`
+        (the service checks that it names a robot it shows).
 
     Raises:
         PanelError: anything malformed, unknown or out of place.
@@ -131,4 +145,6 @@ def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets 
                     raise PanelError("no robot description yet")
                 limits.check(joints)
             return PlotRequest(joints=tuple(joints))
+        case PageSelect(robot=robot):
+            return Select(robot=robot)
     raise PanelError("unknown message")  # unreachable: the union is closed

@@ -111,20 +111,21 @@ def scene_commands(
 
     Args:
         robot: the parsed URDF.
-        root: top-level meshcat path for this drawing (`robot`, `ghost`).
+        root: meshcat path of this drawing (`robot`, `ghost`; a world's `robots/g1a`).
         meshes: mesh bytes by URDF filename; a visual whose mesh is missing is skipped with a warning.
         style: colours.
 
     Returns:
         set_object and set_transform commands, links at the identity until the first frame.
     """
-    commands: list[dict] = [mc.Delete(_path(root)).lower()]
+    base = tuple(root.split("/"))
+    commands: list[dict] = [mc.Delete(mc.Path(base)).lower()]
     for link in robot.links:
         for i, vis in enumerate(robot.visuals.get(link, [])):
             geometry = _geometry(vis, meshes)
             if geometry is None:
                 continue
-            path = _path(root, link, f"v{i}")
+            path = mc.Path(base + (link.replace("/", "_"), f"v{i}"))
             commands.append(mc.SetObject(geometry, style.material(vis.rgba), path).lower())
             T = vis.origin
             if vis.kind == "cylinder":
@@ -133,10 +134,6 @@ def scene_commands(
                 T = T @ np.diag([*vis.scale, 1.0])
             commands.append({"type": "set_transform", "path": path.lower(), "matrix": _column_major(T)})
     return commands
-
-
-def _path(*parts: str) -> mc.Path:
-    return mc.Path(tuple(p.replace("/", "_") for p in parts))
 
 
 def _geometry(vis: Visual, meshes: Mapping[str, bytes]) -> mg.Geometry | None:
@@ -239,7 +236,8 @@ def layout_paths(kin: Kinematics, roots: Sequence[str]) -> list[str]:
 
 GHOST_COLOR: int = 0x33CCFF
 GHOST_OPACITY: float = 0.35
-ROOTS_WITH_GHOST = ("robot", "ghost")
+ROOTS_WITH_GHOST: tuple[str, str] = ("robot", "ghost")
+"""Meshcat paths of one robot's drawing and its ghost (a world's robots get their own: viz/world.py)."""
 
 
 @dataclass
@@ -266,6 +264,8 @@ def build_drawing(
     q_max: Sequence[float] | None = None,
     ghost: bool = True,
     source: str = "",
+    roots: tuple[str, str] = ROOTS_WITH_GHOST,
+    geometry: bool = True,
 ) -> Drawing:
     """Everything the viewer needs from a description.
 
@@ -279,6 +279,9 @@ def build_drawing(
         q_max: upper limits likewise.
         ghost: also draw the translucent commanded pose.
         source: where the description came from, shown on the page.
+        roots: meshcat paths of the robot and of its ghost.
+        geometry: False: no meshcat commands, for a robot whose description another robot's drawing
+            already carries (the page copies that one's shapes: a world's G1s send their meshes once).
 
     Raises:
         RobotModelError: the limits do not match the joints.
@@ -298,18 +301,20 @@ def build_drawing(
     if missing:
         logger.warning("joints not in the URDF (not drawn): %s", ", ".join(missing))
     kin = Kinematics(robot, names)
-    roots = ROOTS_WITH_GHOST if ghost else ("robot",)
-    commands = [pack_command(c) for c in scene_commands(robot, "robot", meshes, Style())]
-    if ghost:
-        commands += [pack_command(c) for c in scene_commands(robot, "ghost", meshes, Style(GHOST_COLOR, GHOST_OPACITY))]
+    root, ghost_root = roots
+    drawn: tuple[str, ...] = roots if ghost else (root,)
+    commands = [pack_command(c) for c in scene_commands(robot, root, meshes, Style())] if geometry else []
+    if ghost and geometry:
+        commands += [pack_command(c) for c in scene_commands(robot, ghost_root, meshes, Style(GHOST_COLOR, GHOST_OPACITY))]
         # Hidden until the first commanded pose arrives.
-        commands.append(pack_command({"type": "set_property", "path": "/ghost", "property": "visible", "value": False}))
+        commands.append(pack_command({"type": "set_property", "path": f"/{ghost_root}", "property": "visible",
+                                      "value": False}))
     meta = {
         "name": robot.name,
         "source": source,
         "joints": [{"name": n, "lower": lo, "upper": hi} for n, lo, hi in zip(names, lower, upper)],
-        "paths": layout_paths(kin, roots),
-        "roots": list(roots),
+        "paths": layout_paths(kin, drawn),
+        "roots": list(drawn),
         "links": len(kin.links),
     }
-    return Drawing(robot, kin, names, lower, upper, roots, commands, meta)
+    return Drawing(robot, kin, names, lower, upper, drawn, commands, meta)

@@ -1,6 +1,10 @@
 """`zensim viz` wiring: zenoh in, web page out. The drawing and checks live in scene.py and panel.py.
 
-Reads:
+It shows one robot (`--robot-id`) or every robot of a world (`--world`, world.py), each robot's keys
+read and written by its own RobotFeed (feed.py); the page's sliders, buttons, status and plots act on
+the robot selected on the page.
+
+Reads (under each robot's `zensim/{robot}/`):
     state/joints (JointState), state/odom (Odometry): the robot's pose, latest wins.
     state/targets (JointTargets): the ghost (the commanded pose the bridge holds).
     state/sim (SimStatus): the status panel.
@@ -8,12 +12,13 @@ Reads:
     alive/* (liveliness): which services are up; `alive/sim` appearing triggers a description fetch.
     zensim/@router/alive (liveliness): the router badge, whatever robot id the router was started with.
     info/robot, info/urdf, info/mesh/{path} (gets): the description, fetched again after each sim start.
-Writes:
+    zensim/{world}/world/info (get, with --world): the world's robots, fetched again after its sim restarts.
+Writes (under the selected robot's `zensim/{robot}/`):
     cmd/joints (JointTargets): slider moves.
     ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode (gets): the panel's buttons.
-    alive/viz (liveliness token).
+    alive/viz (liveliness token, one per robot shown).
 
-Threads: the tornado loop (main thread) owns the hub and the web server;
+Threads: the tornado loop (main thread) owns the hub, the web server and what is shown;
 zenoh callbacks only store the newest sample; one worker thread fetches
 descriptions; ctl gets run in a small executor so a slow sim never blocks the page.
 """
@@ -25,6 +30,7 @@ import logging
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,34 +42,29 @@ import zenoh
 
 from zensim.common.logs import RateLimitedLog
 from zensim.common.session import StartupError
-from zensim.common.wire import TypedPublisher, decode_input, error_text, read_payload
+from zensim.common.wire import error_text, read_payload
 from zensim.robots.description import RobotModelError, load_description, parse_urdf
 from zensim.robots.mesh_files import resolve_mesh
 from zensim.schemas import topics
-from zensim.schemas.keys import SERVICES
 from zensim.schemas import (
-    AppliedCommand,
     Codec,
     CtlReply,
-    DecodeError,
-    JointState,
     JointTargets,
-    Keys,
     ModeRequest,
-    MotorCommand,
-    Odometry,
     PauseRequest,
     ResetRequest,
     ResumeRequest,
     RobotInfo,
-    SimStatus,
     StepRequest,
     bounded,
+    check_robot_id,
     encoding_of,
+    short_repr,
 )
-from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, INFO_CAP_BYTES, STATE_CAP_BYTES
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, STATE_CAP_BYTES
 
-from . import panel, plots, scene
+from . import fetch, panel, plots, scene, world
+from .feed import RobotFeed
 from .settings import VizSettings
 from .access import Guard
 from .web import Client, Hub, make_app
@@ -71,30 +72,21 @@ from .web import Client, Hub, make_app
 logger = logging.getLogger(__name__)
 ctl_logs = {verb: RateLimitedLog(logger) for verb in ("reset", "pause", "resume", "step", "mode")}
 """The line per control request a page sends, one limiter per verb: bounded, a page may send many."""
-alive_log = RateLimitedLog(logger)
-"""The line per liveliness change: bounded, any session may declare tokens."""
-MAX_ALIVE_NAMES = 32
-"""Distinct names shown as alive; other tokens past this are ignored (counted). zensim's own services
-(keys.SERVICES, six) always show."""
-MAX_ALIVE_NAME_CHARS = 32
+world_wait_log = RateLimitedLog(logger, 30.0)
+"""The line while the world does not answer (the viewer may start before it): every 30 s at most."""
 
 STATUS_PERIOD_S = 0.2
 PLOT_PERIOD_S = 0.1
 DESCRIPTION_RETRY_S = 2.0
 
 
-class Latest:
-    """The newest decoded sample of one key, with a counter that says when it changed.
+@dataclass(frozen=True)
+class Shown:
+    """One robot on the page: where its samples come from, its drawing and the limits its sliders cover."""
 
-    Zenoh callbacks run on their own threads; a single attribute store is atomic
-    in CPython, so the reader sees either the old or the new (value, count).
-    """
-
-    def __init__(self) -> None:
-        self.item: tuple[Any, int] = (None, 0)
-
-    def set(self, value: Any) -> None:
-        self.item = (value, self.item[1] + 1)
+    feed: RobotFeed
+    drawing: scene.Drawing
+    limits: panel.JointLimits
 
 
 class VizService:
@@ -103,111 +95,45 @@ class VizService:
     def __init__(self, session: zenoh.Session, settings: VizSettings, stop: threading.Event) -> None:
         self.session = session
         self.settings = settings
+        self.world = settings.world
         self.stop = stop
-        self.keys = Keys(settings.robot_id)
         self.loop = tornado.ioloop.IOLoop.current()
         self.hub = Hub(self._on_client_message)
         self.executor = ThreadPoolExecutor(max_workers=2, thread_name_prefix="viz-ctl")
-        self.bad_input = RateLimitedLog(logger)
 
-        self.joints = Latest()
-        self.odom = Latest()
-        self.targets = Latest()
-        self.status = Latest()
-        self.alive: set[str] = set()
-        self.alive_ignored = 0
-        self.alive_logs: dict[str, RateLimitedLog] = {}
         self.router_alive = False
         """The router's own token (topics.ROUTER_ALIVE) is up: the badge is green for every robot."""
         self.alive_lock = threading.Lock()
-
-        self.drawing: scene.Drawing | None = None
-        self.limits: panel.JointLimits | None = None
-        self.description_state = "waiting for the sim"
+        self.feeds: dict[str, RobotFeed] = {}
+        """Robot id -> its feed. One robot: made here, kept for good. A world: made for the robots of each
+        world/info by the fetch thread, installed (and the others closed) on the loop. Replaced whole."""
+        self.shown: list[Shown] = []
+        """What the page draws, in frame order (loop thread)."""
+        self.views: dict[str, Shown] = {}
+        self.description_state = f"waiting for the world {self.world}" if self.world else "waiting for the sim"
         self._fetch_wanted = threading.Event()
-        self._last_drawn = (-1, -1, -1)
-
-        # Any: each callback knows which type its codec gives (the key says it).
-        self._codecs: dict[type, Codec[Any]] = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus, RobotInfo,
-                                                                      CtlReply, MotorCommand, AppliedCommand)}
-        self.plot_feed = plots.PlotFeed()
-        self.plot_subs: dict[Client, plots.Subscription] = {}
-        self.cmd_publisher = TypedPublisher.of(session, self.keys, topics.JOINT_TARGETS)
+        self._world_left = False
+        """A world's sim went away since its world/info was fetched: fetch again when it is back."""
+        self._last_drawn: tuple[int, ...] = ()
+        self._codecs: dict[type, Codec[Any]] = {t: Codec(t) for t in (RobotInfo, CtlReply)}
+        self.plot_subs: dict[Client, tuple[plots.PlotFeed, plots.Subscription]] = {}
         self._declared = [
-            session.declare_subscriber(self.keys.joints, self._store(self.joints, JointState)),
-            session.declare_subscriber(self.keys.odom, self._store(self.odom, Odometry)),
-            session.declare_subscriber(self.keys.sim_status, self._store(self.status, SimStatus)),
-            session.liveliness().declare_subscriber(self.keys.alive_any, self._on_alive, history=True),
             session.liveliness().declare_subscriber(topics.ROUTER_ALIVE.full_key(), self._on_router_alive, history=True),
         ]
-        self._declared += [
-            session.declare_subscriber(self.keys.joints, self._plot_sample(JointState)),
-            session.declare_subscriber(self.keys.motors, self._plot_sample(MotorCommand)),
-            session.declare_subscriber(self.keys.bridge_targets, self._plot_sample(JointTargets)),
-            session.declare_subscriber(self.keys.applied, self._plot_sample(AppliedCommand)),
-        ]
-        if settings.ghost:
-            self._declared.append(
-                session.declare_subscriber(self.keys.bridge_targets, self._store(self.targets, JointTargets)))
-        self.token = session.liveliness().declare_token(self.keys.alive("viz"))
+        if self.world is None:  # last: its callbacks start at once and use the above
+            self.feeds = {settings.robot_id: RobotFeed(session, settings.robot_id, settings.ghost, self._on_sim)}
 
-    # --- zenoh callbacks: decode, store, return ----------------------------------------
-    def _store(self, slot: Latest, message_type: type) -> Any:
-        codec = self._codecs[message_type]
-
-        def callback(sample: zenoh.Sample) -> None:
-            try:
-                slot.set(decode_input(sample, codec, STATE_CAP_BYTES))
-            except DecodeError as exc:
-                self.bad_input.warning("dropped a sample on %s: %s", bounded(str(sample.key_expr), 120), exc)
-
-        return callback
-
-    def _plot_sample(self, message_type: type) -> Any:
-        """Every sample (not just the newest) feeds the plots; bad ones are dropped like the others."""
-        codec, feed = self._codecs[message_type], self.plot_feed
-
-        def callback(sample: zenoh.Sample) -> None:
-            try:
-                message = decode_input(sample, codec, STATE_CAP_BYTES)
-            except DecodeError as exc:
-                self.bad_input.warning("dropped a sample on %s: %s", bounded(str(sample.key_expr), 120), exc)
-                return
-            if isinstance(message, JointState):
-                feed.on_state(message.sim_time_s, message.q, message.tau)
-            elif isinstance(message, AppliedCommand):
-                feed.on_applied(message.sim_time_s, message.command.names, message.command.q)
-            else:
-                feed.on_command(message.names, message.q)
-
-        return callback
-
-    def _on_alive(self, sample: zenoh.Sample) -> None:
-        # Any session may declare tokens here: names are bounded in length and count, and so is what the
-        # status shows and the log says (3000 invented tokens once made every page's status 624 KB).
-        service = str(sample.key_expr).rsplit("/", 1)[-1]
-        if len(service) > MAX_ALIVE_NAME_CHARS:
-            self.alive_ignored += 1
-            alive_log.warning("ignored a liveliness token with a %d-character name (%d ignored so far)",
-                              len(service), self.alive_ignored)
-            return
-        with self.alive_lock:
-            if sample.kind == zenoh.SampleKind.PUT:
-                # zensim's own services always show (a flood of invented names must not hide the sim);
-                # other names share the cap.
-                if service not in SERVICES and service not in self.alive and len(self.alive) >= MAX_ALIVE_NAMES:
-                    self.alive_ignored += 1
-                    alive_log.warning("ignored liveliness token %r: already %d services shown (%d ignored so far)",
-                                      service, MAX_ALIVE_NAMES, self.alive_ignored)
-                    return
-                self.alive.add(service)
-            else:
-                self.alive.discard(service)
-        # zensim's own services each have their line (bounded: a few names); any other name shares one limiter.
-        line = self.alive_logs.setdefault(service, RateLimitedLog(logger)) if service in SERVICES else alive_log
-        line.info("%s %s", service, "is alive" if sample.kind == zenoh.SampleKind.PUT else "left")
-        if service == "sim" and sample.kind == zenoh.SampleKind.PUT:
-            # A (re)started sim may serve another robot or mode: fetch the description again.
+    # --- zenoh callbacks ----------------------------------------------------------------
+    def _on_sim(self, up: bool) -> None:
+        """A robot's `alive/sim` came or went (a zenoh thread)."""
+        if self.world is None:
+            if up:  # a (re)started sim may serve another robot or mode: fetch the description again
+                self._fetch_wanted.set()
+        elif not up:  # the world stopped: fetch it again, retried until it answers (it may come back changed)
+            self._world_left = True
+            self._fetch_wanted.set()
+        elif self._world_left:
+            self._world_left = False
             self._fetch_wanted.set()
 
     def _on_router_alive(self, sample: zenoh.Sample) -> None:
@@ -218,23 +144,25 @@ class VizService:
     # --- description ------------------------------------------------------------------
     def fetch_loop(self) -> None:
         """Worker thread: fetch the description whenever asked (startup, each sim start)."""
-        if self.settings.urdf:
+        if self.settings.urdf or self.world:
             self._fetch_wanted.set()
         while not self.stop.is_set():
             if not self._fetch_wanted.wait(0.2):
                 continue
             self._fetch_wanted.clear()
             try:
-                drawing = self._fetch_description()
+                if self.world:
+                    self._fetch_world()
+                else:
+                    self._fetch_robot()
             except (OSError, ValueError, TimeoutError, zenoh.ZError) as exc:
                 self.description_state = f"description failed: {exc}"
-                logger.warning("%s", self.description_state)
-                with self.alive_lock:
-                    sim_alive = "sim" in self.alive
-                if sim_alive and not self.stop.wait(DESCRIPTION_RETRY_S):
+                # A world is asked again until it answers (the viewer may start first; its robots are
+                # known only from its answer); one robot, while its sim is up.
+                retry = self.world is not None or "sim" in self.feeds[self.settings.robot_id].alive_names()
+                (world_wait_log if self.world else logger).warning("%s", self.description_state)
+                if retry and not self.stop.wait(DESCRIPTION_RETRY_S):
                     self._fetch_wanted.set()
-                continue
-            self.loop.add_callback(self._install, drawing)
 
     def _get_bytes(self, key: str, payload: bytes | None = None, cap_bytes: int = DESCRIPTION_CAP_BYTES) -> bytes:
         """One zenoh get; the first good reply's payload, at most `cap_bytes` long.
@@ -251,14 +179,24 @@ class VizService:
             raise ValueError(f"{key}: {error_text(reply.err)}")
         raise TimeoutError(f"no reply on {key} within {self.settings.query_timeout_s} s")
 
-    def _fetch_description(self) -> scene.Drawing:
+    def _get(self, key: str, cap_bytes: int) -> bytes:
+        """fetch.Getter: a description get."""
+        return self._get_bytes(key, cap_bytes=cap_bytes)
+
+    def _fetch_robot(self) -> None:
+        """One robot's description, drawn once the loop installs it."""
+        feed = self.feeds[self.settings.robot_id]
+        drawing = self._fetch_description(feed)
+        shown = Shown(feed, drawing, panel.JointLimits(drawing.joint_names, drawing.lower, drawing.upper))
+        self.loop.add_callback(self._install, [shown], drawing.commands, drawing.meta)
+
+    def _fetch_description(self, feed: RobotFeed) -> scene.Drawing:
         self.description_state = "fetching the description"
         started = time.monotonic()
+        keys = feed.keys
         info: RobotInfo | None = None
-        with self.alive_lock:
-            sim_alive = "sim" in self.alive
-        if sim_alive or not self.settings.urdf:
-            info = self._codecs[RobotInfo].decode(self._get_bytes(self.keys.robot_info, cap_bytes=INFO_CAP_BYTES))
+        if "sim" in feed.alive_names() or not self.settings.urdf:
+            info = fetch.robot_info(self._get, keys)
         meshes: dict[str, bytes] = {}
         if self.settings.urdf:
             urdf_path = Path(self.settings.urdf).expanduser().resolve()
@@ -271,14 +209,9 @@ class VizService:
                     logger.warning("not sent to browsers: %s", exc)
         else:
             assert info is not None
-            robot = parse_urdf(self._get_bytes(self.keys.urdf))
-            source = f"zenoh {self.keys.urdf}"
-            for filename in scene.visual_mesh_filenames(robot):
-                served = scene.match_mesh(filename, info.mesh_paths)
-                if served is None:
-                    logger.warning("mesh %s is not among RobotInfo.mesh_paths: not drawn", filename)
-                    continue
-                meshes[filename] = self._get_bytes(self.keys.mesh(served))
+            robot = parse_urdf(fetch.urdf(self._get, keys))
+            source = f"zenoh {keys.urdf}"
+            meshes = fetch.meshes(self._get, keys, robot, info)
         drawing = scene.build_drawing(
             robot, meshes,
             joint_names=info.joint_names if info else None,
@@ -290,37 +223,70 @@ class VizService:
                     sum(map(len, meshes.values())) / 1e3, time.monotonic() - started)
         return drawing
 
-    def _install(self, drawing: scene.Drawing) -> None:
-        self.drawing = drawing
-        self.limits = panel.JointLimits(drawing.joint_names, drawing.lower, drawing.upper)
-        self.plot_feed.set_joints(drawing.joint_names)
+    def _fetch_world(self) -> None:
+        """The world's robots and their descriptions; a feed for each (kept for robots already shown)."""
+        assert self.world is not None
+        self.description_state = f"fetching the world {self.world}"
+        started = time.monotonic()
+        fetched = world.fetch_world(self._get, self.world, self.settings.ghost)
+        self._world_left = False
+        known = self.feeds
+        feeds = {robot_id: known.get(robot_id) or RobotFeed(self.session, robot_id, self.settings.ghost, self._on_sim,
+                                                             label=f"{robot_id}: ")
+                 for robot_id, _ in fetched.drawings}
+        shown = [Shown(feeds[robot_id], d, panel.JointLimits(d.joint_names, d.lower, d.upper))
+                 for robot_id, d in fetched.drawings]
+        state = "ok" if not fetched.left_out else \
+            f"showing the first {len(shown)} robots of {len(shown) + fetched.left_out} (at most {world.MAX_ROBOTS})"
+        logger.info("description of world %s: %d robots in %.2f s", self.world, len(shown), time.monotonic() - started)
+        self.loop.add_callback(self._install, shown, fetched.commands, fetched.meta, feeds, state)
+
+    def _install(self, shown: list[Shown], commands: list[bytes], meta: dict, feeds: dict[str, RobotFeed] | None = None,
+                 state: str = "ok") -> None:
+        """(loop) Show `shown` from now on; with `feeds`, those replace the feeds (others are closed)."""
+        if feeds is not None:
+            old, self.feeds = self.feeds, feeds
+            for feed in old.values():
+                if feeds.get(feed.keys.robot) is not feed:
+                    feed.close()
+        self.shown = shown
+        self.views = {view.feed.keys.robot: view for view in shown}
+        for view in shown:
+            view.feed.plot_feed.set_joints(view.drawing.joint_names)
         self.plot_subs.clear()  # pages pick their joints again for the new robot
-        self.description_state = "ok"
-        self._last_drawn = (-1, -1, -1)
-        self.hub.set_scene(drawing.commands, drawing.meta)
+        self.description_state = state
+        self._last_drawn = ()
+        self.hub.set_scene(commands, meta)
 
     # --- periodic work on the loop ------------------------------------------------------
     def tick(self) -> None:
-        """Draw the newest pose for browsers that are ready (at most rate_hz)."""
+        """Draw the newest poses of every robot shown, in one frame, for browsers that are ready (at most rate_hz)."""
         if self.stop.is_set():
             self.loop.stop()
             return
-        drawing = self.drawing
-        if drawing is None or not self.hub.any_ready():
+        shown = self.shown
+        if not shown or not self.hub.any_ready():
             return
-        (js, n_j), (odom, n_o), (targets, n_t) = self.joints.item, self.odom.item, self.targets.item
-        if (n_j, n_o, n_t) == self._last_drawn and self.hub.frame is not None:
+        items = [(view, view.feed.joints.item, view.feed.odom.item, view.feed.targets.item) for view in shown]
+        counts = tuple(n for _, (_, n_j), (_, n_o), (_, n_t) in items for n in (n_j, n_o, n_t))
+        if counts == self._last_drawn and self.hub.frame is not None:
             return  # nothing new: ready browsers already have the newest frame
-        self._last_drawn = (n_j, n_o, n_t)
+        self._last_drawn = counts
+        parts: list[Any] = []
+        for view, (js, _), (odom, _), (targets, _) in items:
+            parts += self._transforms(view.drawing, js, odom, targets)
+        self.hub.publish_frame(scene.frame_payload(*parts))
+
+    def _transforms(self, drawing: scene.Drawing, js: Any, odom: Any, targets: JointTargets | None) -> list[Any]:
+        """One robot's link transforms (and its ghost's), in the order of its drawing's paths."""
         pos = odom.pos if odom is not None else None
         quat = odom.quat_wxyz if odom is not None else None
         q = js.q if js is not None and len(js.q) == len(drawing.joint_names) else None
         actual = drawing.kin.transforms(q, scene.base_transform(pos, quat))
-        parts = [actual]
-        if self.settings.ghost:
-            parts.append(drawing.kin.transforms(
-                self._ghost_q(drawing, targets, q), scene.base_transform(pos, quat, self.settings.ghost_offset_m)))
-        self.hub.publish_frame(scene.frame_payload(*parts))
+        if not self.settings.ghost:
+            return [actual]
+        return [actual, drawing.kin.transforms(
+            self._ghost_q(drawing, targets, q), scene.base_transform(pos, quat, self.settings.ghost_offset_m))]
 
     @staticmethod
     def _ghost_q(drawing: scene.Drawing, targets: JointTargets | None, q: Any) -> list[float] | None:
@@ -335,22 +301,44 @@ class VizService:
                 ghost[i] = value
         return ghost
 
+    def _feed_of(self, client: Client) -> RobotFeed | None:
+        """The robot a page acts on: the one it selected, else the first (None before a world is known)."""
+        feeds = self.feeds
+        return (feeds.get(client.robot) if client.robot else None) or next(iter(feeds.values()), None)
+
+    def _view_of(self, client: Client) -> Shown | None:
+        """The drawn robot a page acts on (None before a description)."""
+        view = self.views.get(client.robot) if client.robot else None
+        return view or (self.shown[0] if self.shown else None)
+
     def publish_status(self) -> None:
-        status, _ = self.status.item
-        targets, _ = self.targets.item
-        joints, _ = self.joints.item
+        """Each page the status of its robot (pages that selected the same robot share one message)."""
         with self.alive_lock:
-            alive = sorted(self.alive | ({"router"} if self.router_alive else set()))
+            router = {"router"} if self.router_alive else set()
+        pages: dict[RobotFeed | None, list[Client]] = {}
+        for client in list(self.hub.clients):
+            pages.setdefault(self._feed_of(client), []).append(client)
+        for feed, clients in pages.items():
+            self.hub.publish_json(self._status(feed, router), clients)
+
+    def _status(self, feed: RobotFeed | None, router: set[str]) -> dict[str, Any]:
+        status = targets = joints = None
+        alive: set[str] = set()
+        if feed is not None:
+            (status, _), (targets, _), (joints, _) = feed.status.item, feed.targets.item, feed.joints.item
+            alive = feed.alive_names()
         message: dict[str, Any] = {
             "type": "status",
-            "alive": alive,
+            "alive": sorted(alive | router),
             "description": self.description_state,
             "sim": _bounded_texts(msgspec.to_builtins(status)) if status is not None else None,
             "targets": {"names": list(targets.names), "q": list(targets.q)} if targets is not None else None,
             "state_seq": joints.seq if joints is not None else None,
             "frames_sent": self.hub.frames_sent,
         }
-        self.hub.publish_json(message)
+        if self.world is not None:
+            message["robot"] = feed.keys.robot if feed is not None else None
+        return message
 
     def publish_plots(self) -> None:
         """Send each plotting page what it has not had, once its previous batch was written."""
@@ -358,10 +346,10 @@ class VizService:
             if client not in self.hub.clients:
                 del self.plot_subs[client]
                 continue
-            sub = self.plot_subs[client]
+            feed, sub = self.plot_subs[client]
             if sub.busy:
                 continue
-            batch = self.plot_feed.batch(sub)
+            batch = feed.batch(sub)
             if batch is None:
                 continue
             future = client.send(json.dumps(batch), binary=False)
@@ -371,25 +359,40 @@ class VizService:
 
     # --- browser input -----------------------------------------------------------------
     def _on_client_message(self, client: Client, data: Any) -> None:
+        view = self._view_of(client)
         try:
-            command = panel.parse_client_message(data, self.limits)
+            command = panel.parse_client_message(data, view.limits if view is not None else None)
         except panel.PanelError as exc:
             self.hub.refuse(client, str(exc))
             return
+        if isinstance(command, panel.Select):
+            if command.robot not in self.views:
+                self.hub.refuse(client, f"no robot {short_repr(command.robot)} is shown here")
+                return
+            client.robot = command.robot
+            self.plot_subs.pop(client, None)  # the page asks again for the new robot's joints
+            return
         if isinstance(command, JointTargets):
-            self.cmd_publisher.put(command)
+            assert view is not None  # parse_client_message refuses targets before a description
+            view.feed.cmd_publisher.put(command)
             return
         if isinstance(command, panel.PlotRequest):
             if command.joints:
-                self.plot_subs[client] = self.plot_feed.subscribe(command.joints)
+                assert view is not None  # likewise for joints to plot
+                plot_feed = view.feed.plot_feed
+                self.plot_subs[client] = (plot_feed, plot_feed.subscribe(command.joints))
             else:
                 self.plot_subs.pop(client, None)
+            return
+        feed = self._feed_of(client)
+        if feed is None:
+            self.hub.refuse(client, f"ctl/{command.verb}: no robot yet ({self.description_state})")
             return
         if client.ctl_in_flight:
             self.hub.refuse(client, f"ctl/{command.verb}: this page's previous control request is still in flight")
             return
         client.ctl_in_flight = True
-        future = self.loop.run_in_executor(self.executor, self._ctl, command)
+        future = self.loop.run_in_executor(self.executor, self._ctl, command, feed)
         future.add_done_callback(lambda f: self._ctl_done(client, command.verb, f))
 
     def _ctl_done(self, client: Client, verb: str, future: Any) -> None:
@@ -401,8 +404,8 @@ class VizService:
                                                      "error": bounded(f"{type(error).__name__}: {error}")}
         self.hub.reply(client, out)
 
-    def _ctl(self, command: panel.Ctl) -> dict:
-        """Executor thread: one ctl get; the page's reply as a dict."""
+    def _ctl(self, command: panel.Ctl, feed: RobotFeed) -> dict:
+        """Executor thread: one ctl get to `feed`'s robot; the page's reply as a dict."""
         request = {
             "reset": ResetRequest(),
             "pause": PauseRequest(),
@@ -411,21 +414,21 @@ class VizService:
         }.get(command.verb) or ModeRequest(mode=command.mode)  # type: ignore[arg-type]
         out: dict[str, Any] = {"type": "ctl_reply", "verb": command.verb}
         try:
-            raw = self._get_bytes(self.keys.ctl(command.verb), Codec(type(request)).encode(request), STATE_CAP_BYTES)
+            raw = self._get_bytes(feed.keys.ctl(command.verb), Codec(type(request)).encode(request), STATE_CAP_BYTES)
             reply = self._codecs[CtlReply].decode(raw)
         except (TimeoutError, ValueError, zenoh.ZError) as exc:
             out.update(ok=False, error=bounded(str(exc)))
             return out
         out.update(_bounded_texts(msgspec.to_builtins(reply)))
         out["type"] = "ctl_reply"
-        ctl_logs[command.verb].info("ctl/%s -> ok=%s %s", command.verb, reply.ok, reply.error or "")
+        ctl_logs[command.verb].info("%sctl/%s -> ok=%s %s", feed.label, command.verb, reply.ok, reply.error or "")
         return out
 
     def close(self) -> None:
-        self.token.undeclare()
+        for feed in self.feeds.values():
+            feed.close()
         for declared in self._declared:
             declared.undeclare()
-        self.cmd_publisher.undeclare()
         self.executor.shutdown(wait=False, cancel_futures=True)
 
 
@@ -441,6 +444,14 @@ def url_authority(host: str, port: int) -> str:
 
 def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) -> int:
     """Serve the page until `stop` is set; returns the exit code."""
+    if settings.world is not None:
+        try:
+            check_robot_id(settings.world)
+        except ValueError as exc:
+            raise StartupError(f"--world / ZENSIM_VIZ_WORLD: the world's id: {exc}") from None
+        if settings.urdf:
+            raise StartupError("--urdf draws one robot from a local file, --world every robot of a world from its sim: "
+                               "give one of them")
     service = VizService(session, settings, stop)
     try:
         sockets = tornado.netutil.bind_sockets(settings.port, address=settings.host)
@@ -454,7 +465,8 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
     guard.cookie_name = f"zensim_viz_token_{port}"
     server = tornado.httpserver.HTTPServer(make_app(service.hub, guard))
     server.add_sockets(sockets)
-    logger.info("viz up: http://%s:%d/", settings.host, port)
+    logger.info("viz up: http://%s:%d/%s", settings.host, port,
+                f" (every robot of the world {settings.world})" if settings.world else "")
     if guard.token is not None:
         # Once, like Jupyter: whoever can read this log can open the page. No other line carries the token
         # (requests are logged without their query, web.py log_request).

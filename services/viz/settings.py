@@ -37,3 +37,5 @@ class VizSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     published_on: str | None = None
     """Where the page is reachable from outside when that is not --host (compose passes ZENSIM_BIND);
     anything but loopback requires the token."""
+    world: str | None = None
+    """A world's id (`zensim sim --world`): show every robot of that world at its place; the panel acts on the one picked."""

@@ -118,6 +118,8 @@ class Client:
         """The page hears why at most once a second: a reply per refused message would amplify a flood."""
         self.ctl_in_flight = False
         """One control request per page at a time: a page cannot queue resets faster than the sim answers."""
+        self.robot: str | None = None
+        """The robot this page's panel acts on (a world's viewer); None: the first robot shown."""
 
     def send(self, data: bytes | str, binary: bool) -> Any:
         """Write to the page; None when it is gone or was dropped for not reading."""
@@ -221,10 +223,10 @@ class Hub:
         client.ready = True
 
     # --- status --------------------------------------------------------------
-    def publish_json(self, message: dict) -> None:
-        """Send a small JSON message to every browser not still busy with the previous one."""
+    def publish_json(self, message: dict, clients: list[Client] | None = None) -> None:
+        """Send a small JSON message to every browser (or to `clients`) not still busy with the previous one."""
         text = json.dumps(message)
-        for client in list(self.clients):
+        for client in list(self.clients) if clients is None else clients:
             if client.status_busy:
                 continue
             future = client.send(text, binary=False)

@@ -6,6 +6,7 @@
 const state = {
   connected: false, sceneReady: false, generation: -1, framesApplied: 0, connects: 0,
   robot: null, status: null, lastReply: null, lastError: null,
+  selected: null,   // a world's viewer: the robot the panel acts on
 };
 window.zensim = state;
 
@@ -15,9 +16,11 @@ const DRAWING_COMMANDS = new Set(["set_object", "set_transform", "set_property",
 const meshcatHandle = viewer.handle_command.bind(viewer);
 viewer.handle_command = (cmd) => { if (DRAWING_COMMANDS.has(cmd.type)) meshcatHandle(cmd); };
 state.viewer = viewer;
-// For tests and the console: where a link of `robot` or `ghost` is drawn now.
+// For tests and the console: where a link of `robot` or `ghost` (a world's `robots/<id>`, `ghosts/<id>`)
+// is drawn now, in the world frame.
+const pathOf = (root) => root.split("/");
 state.linkPosition = (root, link) => {
-  const p = viewer.scene_tree.find([root, link]).object.position;
+  const p = viewer.scene_tree.find([...pathOf(root), link]).object.position;
   return [p.x, p.y, p.z];
 };
 
@@ -102,10 +105,89 @@ function onRobot(msg) {
   state.sceneReady = false;
   nodes = msg.paths.map((p) => viewer.scene_tree.find(p.split("/").filter((x) => x.length)));
   ghostVisible = false;
+  if (msg.robots) { onWorld(msg); return; }
   $("robot-name").textContent = msg.name;
   buildSliders(msg.joints);
   buildPlotChoices(msg.joints);
 }
+
+// --- a world of several robots (zensim viz --world) ----------------------------------------------
+// Every robot is drawn at its own pose; the panel (sliders, buttons, status, plots, the ghost) acts on
+// the one selected here, and the viz is told which (`select`), so what it sends back is that robot's.
+
+let worldFramed = false;
+
+function onWorld(msg) {
+  for (const robot of msg.robots) {
+    if (robot.copy_of) {
+      // Sent without shapes: its description is another robot's, whose shapes it copies.
+      const from = msg.robots.find((r) => r.id === robot.copy_of);
+      robot.roots.forEach((root, i) =>
+        copyShapes(viewer.scene_tree.find(pathOf(from.roots[i])), viewer.scene_tree.find(pathOf(root))));
+    }
+    if (robot.roots[1]) viewer.set_property(pathOf(robot.roots[1]), "visible", false);
+  }
+  const select = $("robot-select");
+  select.textContent = "";
+  for (const robot of msg.robots) {
+    const option = document.createElement("option");
+    option.value = robot.id;
+    option.textContent = `${robot.id} (${robot.name}, ${robot.mode})`;
+    select.append(option);
+  }
+  $("robot-choice").hidden = false;
+  if (!worldFramed) frameWorld(msg.robots);   // once: a later scene (the world restarted) keeps the user's view
+  worldFramed = true;
+  const kept = msg.robots.some((r) => r.id === state.selected) ? state.selected : msg.robots[0].id;
+  state.selected = null;
+  selectRobot(kept);
+}
+
+// Copies of the shapes under `from` (meshcat scene nodes) under `to`: the same geometry and materials
+// in memory, so the meshes of a description cross the network and sit in the GPU once.
+function copyShapes(from, to) {
+  for (const [name, child] of Object.entries(from.children)) {
+    const node = to.find([name]);
+    if (name === "<object>") {
+      node.set_object(child.object.clone());
+      continue;
+    }
+    for (const part of ["position", "quaternion", "scale"]) node.object[part].copy(child.object[part]);
+    copyShapes(child, node);
+  }
+}
+
+function selectedRobot() {
+  return state.robot && state.robot.robots ? state.robot.robots.find((r) => r.id === state.selected) : null;
+}
+
+function selectRobot(id) {
+  const before = selectedRobot();
+  if (before && before.roots[1]) viewer.set_property(pathOf(before.roots[1]), "visible", false);
+  ghostVisible = false;
+  state.selected = id;
+  state.status = null;
+  const robot = selectedRobot();
+  $("robot-select").value = id;
+  $("robot-name").textContent = `${state.robot.name}: ${id}`;
+  send({ type: "select", robot: id });   // first: the plot request that may follow is for this robot
+  buildSliders(robot.joints);
+  buildPlotChoices(robot.joints);
+}
+
+// The camera looks at the middle of the robots' spawn places, from the -y side and far enough to see
+// them all (meshcat's camera frame is y-up: [x, up, -y] in the world).
+function frameWorld(robots) {
+  const xs = robots.map((r) => r.xy[0]), ys = robots.map((r) => r.xy[1]);
+  const cx = (Math.min(...xs) + Math.max(...xs)) / 2, cy = (Math.min(...ys) + Math.max(...ys)) / 2;
+  const k = Math.max(1, 0.5 + Math.max(Math.max(...xs) - Math.min(...xs), Math.max(...ys) - Math.min(...ys)) / 4);
+  viewer.controls.target.set(cx, 0.5, -cy);
+  viewer.set_property(["Cameras", "default", "rotated", "<object>"], "position", [cx + 1.2 * k, 1.4 * k, -cy + 2.6 * k]);
+  viewer.controls.update();
+  viewer.set_dirty();
+}
+
+$("robot-select").addEventListener("change", () => selectRobot($("robot-select").value));
 
 function buildSliders(joints) {
   const box = $("sliders");
@@ -135,6 +217,7 @@ function buildSliders(joints) {
 }
 
 function onStatus(msg) {
+  if (msg.robot !== undefined && msg.robot !== state.selected) return;   // sent before the page switched
   state.status = msg;
   const sim = msg.sim;
   $("sim-time").textContent = sim ? sim.sim_time_s.toFixed(2) + " s" : "–";
@@ -152,9 +235,15 @@ function onStatus(msg) {
     alive.append(span);
   }
   if (sim) onRtf(sim.rtf);
-  $("description").textContent = msg.description === "ok" ? (state.robot ? state.robot.source : "") : msg.description;
+  const shown = selectedRobot() || state.robot;
+  $("description").textContent = msg.description === "ok" ? (shown ? shown.source : "") : msg.description;
   if (msg.targets) {
-    if (!ghostVisible) { viewer.set_property(["ghost"], "visible", true); ghostVisible = true; }
+    if (!ghostVisible) {
+      const robot = selectedRobot();
+      const ghost = robot ? robot.roots[1] : "ghost";
+      if (ghost) viewer.set_property(pathOf(ghost), "visible", true);
+      ghostVisible = true;
+    }
     // Sliders follow the targets the bridge holds, except one the user moved in the last second.
     const now = performance.now();
     msg.targets.names.forEach((name, i) => {
