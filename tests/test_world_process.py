@@ -350,3 +350,20 @@ def test_world_info_lists_the_robots_and_answers_only_its_exact_key(
     assert oversize[0].ok is None and "over this key's cap" in oversize[0].err.payload.to_string()
     wait_for(lambda: "rejected world request on" in sim.log(), 5, "the refusals logged")
     assert sim.alive()
+
+
+def test_a_world_id_is_taken_while_the_world_runs(
+    start_service: Callable[..., Service], zsession: zenoh.Session, world: dict[str, str], tmp_path: Path
+) -> None:
+    """A second world with the same id (other robots), or a sim whose robot id is the world's, is refused with
+    the reason: both would answer the world's verbs, or mix a robot's keys into them."""
+    start_service("sim", "--world", world["file"])
+    wait_for(lambda: list(zsession.liveliness().get(Keys(world["world"]).alive("world"), timeout=1)), 60, "the world up")
+    other = tmp_path / "other.toml"
+    other.write_text(f'id = "{world["world"]}"\n[[robots]]\nid = "{world["a"]}-other"\n')
+    second = start_service("sim", "--world", str(other))
+    assert second.proc.wait(60) == 2, second.log()
+    assert f"robot id {world['world']!r} is already served by a world" in second.log(), second.log()
+    alone = start_service("sim", "--mode", "fixed", env={"ZENSIM_ROBOT_ID": world["world"]})
+    assert alone.proc.wait(60) == 2, alone.log()
+    assert "already served by a world" in alone.log(), alone.log()

@@ -14,12 +14,13 @@ from zensim.schemas import Keys
 
 CLAIM_CHECK_S = 1.0
 """How long the startup check waits for the router's answer (it answers at once on a healthy network)."""
-OWNERS = ("replay", "sim")
-"""Tokens that mean "this id's states are already published", most specific first."""
+OWNERS = ("replay", "sim", "world")
+"""Tokens that mean "this id is already served", most specific first (a world's own id carries alive/world:
+its verbs live under it, so neither a second world nor a robot may take it)."""
 
 
 def current_owner(session: zenoh.Session, keys: Keys) -> str | None:
-    """`replay` or `sim` when one already serves this robot id, else None."""
+    """`replay`, `sim` or `world` when one already serves this id, else None."""
     found: set[str] = set()
     for reply in session.liveliness().get(keys.alive("*"), timeout=CLAIM_CHECK_S):
         if reply.ok is not None:
@@ -29,6 +30,6 @@ def current_owner(session: zenoh.Session, keys: Keys) -> str | None:
 
 def taken_message(robot_id: str, owner: str) -> str:
     """The one line a refused sim or replay prints."""
-    who = "a `zensim replay`" if owner == "replay" else "a live sim"
+    who = {"replay": "a `zensim replay`", "world": "a world (`zensim sim --world`) as its own id"}.get(owner, "a live sim")
     return (f"robot id {robot_id!r} is already served by {who} (its alive/{owner} token is up); "
             "stop it, or use another id: --robot-id ID")

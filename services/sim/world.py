@@ -272,6 +272,8 @@ class WorldService:
         self._declared.append(session.declare_queryable(keys.world_info, self._on_info))
         for robot in self.robots:  # alive/sim last: a client that saw it finds the world's verbs served too
             robot.announce()
+        self.token = session.liveliness().declare_token(keys.alive("world"))
+        """The world's own id is taken while it runs (services/common/claim.py)."""
 
     # --- world/info: what the world holds --------------------------------------------------------
 
@@ -530,6 +532,7 @@ class WorldService:
                 self._last = self._take_reply_state()
 
     def close(self) -> None:
+        self.token.undeclare()
         for entity in self._declared:
             entity.undeclare()
         self.commands.close()
