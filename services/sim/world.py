@@ -17,6 +17,7 @@ shared by every robot's service; the loop here holds it while it steps and publi
 
 from __future__ import annotations
 
+import gc
 import logging
 import math
 import sys
@@ -475,6 +476,7 @@ class WorldService:
         The same schedule as SimService.run for one robot (service.py), over all robots at once.
         """
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)  # why: service.py SimService.run
+        gc.freeze()  # why: service.py SimService.run
         world, settings, clock, robots = self.world, self.settings, self.clock, self.robots
         timestep = world.timestep_s
         publish_every = max(1, round(1.0 / (settings.state_rate_hz * timestep)))
