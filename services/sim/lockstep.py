@@ -35,6 +35,7 @@ from zensim.common.wire import TypedPublisher, decode_input, payload_of, reply
 from zensim.schemas import AdvanceReply, AppliedCommand, Codec, DecodeError, MotorCommand, bounded, is_json
 
 from .physics import CommandError
+from .requests import run_guarded
 from .service import SimService
 
 logger = logging.getLogger("zensim.sim.lockstep")
@@ -100,11 +101,8 @@ class Lockstep:
             self._refuse(query, error, fmt)
             return
         with self.lock:
-            try:
-                advanced = self.advance(command, hold_when_paused=False, key=self.advance_key)
-            except Exception as exc:  # a failed step must not leave the client without an answer
-                logger.exception("ctl/advance failed")
-                advanced = Advanced(AdvanceReply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}")))
+            advanced = run_guarded(lambda: self.advance(command, hold_when_paused=False, key=self.advance_key),
+                                   "ctl/advance", lambda error: Advanced(AdvanceReply(ok=False, error=error)))
             self._answer(query, advanced.reply, fmt)  # the asking client first, then everyone else
             query.drop()  # ends the query now: a client waiting for the get to complete need not wait for the publishing
             self._publish(advanced)

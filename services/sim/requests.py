@@ -22,10 +22,12 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import zenoh
 
-from zensim.schemas import CtlReply
+from zensim.common.logs import RateLimitedLog
+from zensim.schemas import CtlReply, bounded
 
 logger = logging.getLogger("zensim.sim")
 
@@ -33,6 +35,22 @@ MAX_PENDING = 16
 """ctl requests that may wait for the loop at once; the next one is answered busy."""
 START_TIMEOUT_S = 2.0
 """Longest a request may wait for the loop to start it; later it is dropped, not run."""
+T = TypeVar("T")
+failures = RateLimitedLog(logger)
+"""Tracebacks of requests that raised (a bug in the sim, but one any client can set off again and again)."""
+
+
+def run_guarded(action: Callable[[], T], what: str, failed: Callable[[str], T]) -> T:
+    """Run a request's action; an exception becomes `failed(reason)`, its traceback logged at a bounded rate.
+
+    A failed request must not take down the thread that ran it (the loop, or a callback thread) nor
+    leave its client without an answer.
+    """
+    try:
+        return action()
+    except Exception as exc:
+        failures.exception("%s failed", what)
+        return failed(bounded(f"{type(exc).__name__}: {exc}"))
 
 
 @dataclass
@@ -115,6 +133,6 @@ class Requests:
         try:
             request.answer(request.query, message)
         except Exception:  # a reply that cannot go out must not take the loop down
-            logger.exception("could not answer a ctl request")
+            failures.exception("answering a ctl request")
         finally:
             request.query.drop()  # the final reply: the client's get() ends now

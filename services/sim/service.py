@@ -72,7 +72,7 @@ from zensim.schemas.codec import Format
 from zensim.schemas.messages import Message
 
 from .physics import CommandError, Limits, Simulation
-from .requests import Request, Requests
+from .requests import Request, Requests, run_guarded
 from .settings import SimSettings
 
 logger = logging.getLogger("zensim.sim")
@@ -460,11 +460,7 @@ class SimService:
     def run_request(self, request: Request) -> CtlReply:
         """(loop thread) Run one ctl request under the physics lock; a failure becomes its reply, never the loop's end."""
         with self.physics:
-            try:
-                message = request.run()
-            except Exception as exc:  # a failed request must not take the loop down
-                logger.exception("control request failed")
-                message = self._status_reply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}"))
+            message = run_guarded(request.run, "a ctl request", lambda error: self._status_reply(ok=False, error=error))
             self._snapshot = self._take_snapshot()
         return message
 

@@ -63,7 +63,7 @@ from zensim.schemas.keys import check_robot_id
 from zensim.schemas.messages import Message, Mode
 
 from .physics import MAX_BASE_RISE_M, CommandError, MAX_BASE_SPEED_M_S, Limits, Simulation, broken_warning
-from .requests import Request, Requests
+from .requests import Request, Requests, run_guarded
 from .service import FAST_BATCH_STEPS, GIL_SWITCH_INTERVAL_S, PAUSED_POLL_S, PhysicsLock, SimService, WorldClock
 from .settings import SimSettings
 from .world_commands import WorldCommands
@@ -334,11 +334,8 @@ class WorldService:
                 # lock, answered first and then published; no hand-over to the loop thread on the way.
                 with self.physics:
                     self._unpublished = None
-                    try:
-                        message = handler(request)
-                    except Exception as exc:  # a failed advance must not leave the client without an answer
-                        logger.exception("world/advance failed")
-                        message = self._reply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}"))
+                    message = run_guarded(lambda: handler(request), "world/advance",
+                                          lambda error: self._reply(ok=False, error=error))
                     answer(query, message)
                     query.drop()
                     if self._unpublished is not None:  # put by the publisher thread, while the client reads
@@ -438,11 +435,7 @@ class WorldService:
 
     def _run_request(self, request: Request) -> CtlReply:
         with self.physics:
-            try:
-                message = request.run()
-            except Exception as exc:  # a failed request must not take the loop down
-                logger.exception("world request failed")
-                message = self._reply(ok=False, error=bounded(f"{type(exc).__name__}: {exc}"))
+            message = run_guarded(request.run, "a world request", lambda error: self._reply(ok=False, error=error))
             self._last = self._take_reply_state()
         return message
 
