@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -72,7 +73,10 @@ class Service:
             self.proc.wait(5)
 
     def stop(self, timeout_s: float = 5.0) -> int:
-        """SIGTERM, wait, then SIGKILL; returns the exit code."""
+        """SIGTERM, wait, then SIGKILL; returns the exit code. Processes it started in sessions of their own
+        (`zensim up`'s services, roscore) are killed too when they outlive it: a leader killed before it
+        stopped them left them running for an hour, loading every later test."""
+        offspring = descendants(self.proc.pid) if self.alive() else []
         self.signal(signal.SIGTERM)
         try:
             return self.proc.wait(timeout_s)
@@ -81,6 +85,36 @@ class Service:
             return self.proc.returncode
         finally:
             self._log.close()
+            for pid, started in offspring:
+                if _start_time(pid) == started:  # still that process, not a new one with its number
+                    with contextlib.suppress(ProcessLookupError):
+                        os.kill(pid, signal.SIGKILL)
+
+
+def _start_time(pid: int) -> int | None:
+    """When a process started (clock ticks since boot), None when there is none with that number."""
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def descendants(pid: int) -> list[tuple[int, int | None]]:
+    """Every process below `pid` now (children, their children, ...) and its start time, from /proc."""
+    found: list[int] = []
+    todo = [pid]
+    while todo:
+        parent = todo.pop()
+        try:
+            tasks = list(Path(f"/proc/{parent}/task").iterdir())
+        except OSError:
+            continue
+        for task in tasks:
+            with contextlib.suppress(OSError):
+                children = [int(c) for c in (task / "children").read_text().split()]
+                found += children
+                todo += children
+    return [(child, _start_time(child)) for child in found]
 
 
 class Latest:
