@@ -1,0 +1,500 @@
+"""The router fan-out cost with real routers: a `zensim router` per host (network namespace), in a mesh.
+
+    .venv/bin/python benchmarks/router_mesh.py --hosts 3 --worlds 2 --robots-per-world 1,2,4,8 --seconds 6
+
+Needs root and iproute2 (the hosts are namespaces: tests/netns.py, loaded by path). Each host runs:
+
+- one `zensim router` listening on its own address, connected to every other host's router (each
+  pair once: routers never find each other by themselves), so the routers form a full mesh;
+- `--worlds` `zensim sim --world FILE.toml` processes, clients of that router, each world holding the
+  step's number of floating G1s (ids `h{host}w{world}r{k}`, on a 2 m grid so they never touch);
+- one subscriber (this file run with `--subscriber`, a plain zenoh client of its own host's router)
+  that watches the robots of the NEXT host: every sample it counts has crossed two routers and one
+  router-to-router link. It also watches one robot of its own host (one router, no mesh) as a baseline.
+
+Per step (robots per world grows), two windows with the same sims running:
+
+1. status only: the subscribers take only `state/sim` (10 Hz per robot) of their remote robots, which
+   gives each world's RTF; the routers carry the sims' own traffic and almost nothing across the mesh;
+2. joints: the subscribers add `state/joints` (100 Hz of sim time per robot) of every remote robot.
+
+Router CPU is read from /proc (user + system time) over each window; the difference between the two
+windows is what delivering the joints across the mesh costs the routers. Latency: zenoh routers
+stamp every sample that arrives without a timestamp (zenoh's default for routers; the sims send none),
+so a sample's timestamp is when the sim's own router took it in; the subscriber subtracts it from its
+wall clock at the callback (all namespaces share one machine clock). That is router in -> router ->
+subscriber's Python callback, without the sim -> first router hop on loopback. Delivered / published
+compares the samples counted with each robot's `seq` advance over the window (a slow sim publishes
+fewer than 100 a second: that is the sim, not the mesh). Bytes across: every host's eth0 transmit
+counter (same-host traffic stays on loopback), so it is what crossed between routers.
+
+Runs by hand (a few minutes). Prints a markdown table per window; `--json PATH` also writes every figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import queue
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from harness import cpu_s, plain_client, test_scaffolding
+from zensim.schemas import Codec, JointState, Keys, SimStatus
+
+ZENOH_PORT = 7447
+GRID_M = 2.0
+"""Robots stand on a square grid this far apart: they never touch, so contacts cost what standing costs."""
+SETTLE_S = 2.0
+"""After every robot is seen, before a window starts: the sims are standing and the routers warm."""
+REPLY_TIMEOUT_S = 20.0
+
+
+# ----- the subscriber: this file run with --subscriber, inside a host's namespace -----
+
+class Watch:
+    """What one subscriber process counts for one robot during a window."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.bytes = 0
+        self.first_seq = self.last_seq = -1
+        self.first_status: tuple[float, float] | None = None
+        """(wall time, sim time) of the first SimStatus in the window; `last_status` of the newest."""
+        self.last_status: tuple[float, float] | None = None
+
+    def rtf(self) -> float | None:
+        """Sim time per wall second over the window (from the robot's SimStatus at arrival)."""
+        if self.first_status is None or self.last_status is None or self.last_status[0] <= self.first_status[0]:
+            return None
+        return (self.last_status[1] - self.first_status[1]) / (self.last_status[0] - self.first_status[0])
+
+
+class Subscriber:
+    """A plain zenoh client that watches remote robots (and local baseline ones) and reports per window."""
+
+    def __init__(self, session: zenoh.Session, remote: list[str], local: list[str]) -> None:
+        self.session = session
+        self.remote, self.local = remote, local
+        self.lock = threading.Lock()
+        self.recording = False
+        self.watch = {rid: Watch() for rid in remote + local}
+        self.latency_ms: dict[str, list[float]] = {"remote": [], "local": []}
+        self.stampers: dict[str, set[str]] = {"remote": set(), "local": set()}
+        """Ids of the routers that stamped the samples: remote samples must carry the remote host's router's."""
+        self.unstamped = 0
+        self.seen_status: set[str] = set()
+        self.seen_joints: set[str] = set()
+        self.subs: list[Any] = []
+        self.joints_codec, self.status_codec = Codec(JointState), Codec(SimStatus)
+        for rid in remote:
+            self.subs.append(session.declare_subscriber(Keys(rid).sim_status, self._on_status))
+
+    def subscribe_joints(self) -> None:
+        for rid in self.remote + self.local:
+            self.subs.append(self.session.declare_subscriber(Keys(rid).joints, self._on_joints))
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        now = time.time()
+        rid = str(sample.key_expr).split("/")[1]
+        status = self.status_codec.decode(sample.payload.to_bytes(), str(sample.encoding))
+        with self.lock:
+            self.seen_status.add(rid)
+            if self.recording:
+                watch = self.watch[rid]
+                watch.last_status = (now, status.sim_time_s)
+                watch.first_status = watch.first_status or watch.last_status
+
+    def _on_joints(self, sample: zenoh.Sample) -> None:
+        now_ns = time.time_ns()
+        rid = str(sample.key_expr).split("/")[1]
+        data = sample.payload.to_bytes()
+        state = self.joints_codec.decode(data, str(sample.encoding))
+        stamp = sample.timestamp
+        with self.lock:
+            self.seen_joints.add(rid)
+            if not self.recording:
+                return
+            watch = self.watch[rid]
+            watch.n += 1
+            watch.bytes += len(data)
+            watch.last_seq = state.seq
+            if watch.first_seq < 0:
+                watch.first_seq = state.seq
+            if stamp is None:
+                self.unstamped += 1
+                return
+            # The stamp is the router's hybrid logical clock: the machine's wall clock, since the Unix epoch.
+            sent_ns = stamp.get_time_as_ntp64().as_nanos()
+            where = "remote" if rid in self.remote else "local"
+            self.latency_ms[where].append(round((now_ns - sent_ns) / 1e6, 3))
+            self.stampers[where].add(str(stamp.get_id()))
+
+    def start_window(self) -> None:
+        with self.lock:
+            self.watch = {rid: Watch() for rid in self.remote + self.local}
+            self.latency_ms = {"remote": [], "local": []}
+            self.stampers, self.unstamped = {"remote": set(), "local": set()}, 0
+            self.started = time.time()
+            self.recording = True
+
+    def report(self) -> dict[str, Any]:
+        with self.lock:
+            self.recording = False
+            window_s = time.time() - self.started
+            robots = {}
+            for rid, w in self.watch.items():
+                published = w.last_seq - w.first_seq + 1 if w.first_seq >= 0 else 0
+                robots[rid] = {"remote": rid in self.remote, "delivered": w.n, "published": published,
+                               "bytes": w.bytes, "rtf": w.rtf()}
+            return {"window_s": window_s, "robots": robots, "latency_ms": self.latency_ms,
+                    "stampers": {k: sorted(v) for k, v in self.stampers.items()}, "unstamped": self.unstamped}
+
+
+def wait_until(condition: Any, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def subscriber_main(endpoint: str, remote: list[str], local: list[str]) -> int:
+    """Answer one JSON line per request on stdin: up, wait_status, joints, start, report, quit."""
+    def reply(**fields: Any) -> None:
+        sys.stdout.write(json.dumps(fields) + "\n")
+        sys.stdout.flush()
+
+    with plain_client(endpoint) as session:
+        sub = Subscriber(session, remote, local)
+        reply(ev="up")
+        for line in sys.stdin:
+            op = json.loads(line).get("op")
+            if op == "wait_status":
+                ok = wait_until(lambda: sub.seen_status >= set(remote), 120)
+                reply(ev=op, ok=ok, missing=sorted(set(remote) - sub.seen_status))
+            elif op == "joints":
+                sub.subscribe_joints()
+                ok = wait_until(lambda: sub.seen_joints >= set(remote + local), 30)
+                reply(ev=op, ok=ok, missing=sorted(set(remote + local) - sub.seen_joints))
+            elif op == "start":
+                sub.start_window()
+                reply(ev=op)
+            elif op == "report":
+                reply(ev=op, **sub.report())
+            elif op == "quit":
+                break
+        for s in sub.subs:
+            s.undeclare()
+    return 0
+
+
+# ----- the benchmark: namespaces, routers, worlds, subscribers -----
+
+class Remote:
+    """A subscriber process in a host's namespace, driven by JSON lines (see `subscriber_main`)."""
+
+    def __init__(self, netns: Any, net: Any, host: str, env: dict[str, str], log_dir: Path, endpoint: str,
+                 remote: list[str], local: list[str]) -> None:
+        argv = [sys.executable, "-u", str(Path(__file__).resolve()), "--subscriber", endpoint,
+                "--remote", ",".join(remote), "--local", ",".join(local)]
+        self.process = netns.NsProcess(net, host, argv, env, log_dir, name=f"sub-{host}",
+                                       stdin=subprocess.PIPE, capture_stdout=True)
+        self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        self.expect("up")
+
+    def _read(self) -> None:
+        assert self.process.proc.stdout is not None
+        for line in self.process.proc.stdout:
+            try:
+                self.lines.put(json.loads(line))
+            except ValueError:
+                continue
+
+    def send(self, op: str) -> None:
+        stdin = self.process.proc.stdin
+        assert stdin is not None
+        stdin.write((json.dumps({"op": op}) + "\n").encode())
+        stdin.flush()
+
+    def expect(self, ev: str, timeout_s: float = REPLY_TIMEOUT_S) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                msg = self.lines.get(timeout=0.2)
+            except queue.Empty:
+                if not self.process.alive():
+                    raise RuntimeError(f"subscriber on {self.process.host} exited:\n{self.process.log()[-2000:]}")
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"no {ev!r} from the subscriber on {self.process.host}")
+                continue
+            if msg.get("ev") == ev:
+                return msg
+
+    def request(self, op: str, timeout_s: float = REPLY_TIMEOUT_S) -> dict[str, Any]:
+        self.send(op)
+        return self.expect(op, timeout_s)
+
+    def stop(self) -> None:
+        try:
+            if self.process.alive():
+                self.send("quit")
+                self.process.proc.wait(5)
+        except (OSError, subprocess.TimeoutExpired):
+            pass
+        self.process.stop()
+        if self.process.proc.stdout is not None:
+            self.process.proc.stdout.close()
+
+
+def stop_all(processes: list[Any]) -> None:
+    """SIGTERM every process first, then wait for each (and SIGKILL its group if it lingers)."""
+    for p in processes:
+        if p.alive():
+            p.proc.send_signal(signal.SIGTERM)
+    for p in processes:
+        p.stop()
+    processes.clear()
+
+
+def world_file(path: Path, world_id: str, ids: list[str]) -> Path:
+    side = math.ceil(math.sqrt(len(ids)))
+    rows = "".join(f'[[robots]]\nid = "{rid}"\nxy = [{GRID_M * (k % side)}, {GRID_M * (k // side)}]\n\n'
+                   for k, rid in enumerate(ids))
+    path.write_text(f'id = "{world_id}"\n\n{rows}')
+    return path
+
+
+def tx_bytes(net: Any, host: str) -> int:
+    """Bytes the host's eth0 has sent: traffic between hosts only (same-host traffic goes over lo)."""
+    out = subprocess.run(["ip", "-n", net.hosts[host].netns, "-s", "-j", "link", "show", "eth0"],
+                         capture_output=True, text=True, check=True, timeout=10).stdout
+    return int(json.loads(out)[0]["stats64"]["tx"]["bytes"])
+
+
+def percentile(values: list[float], p: float) -> float:
+    if not values:
+        return math.nan
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(p / 100 * len(ordered)))]
+
+
+class Mesh:
+    """The namespaces and one `zensim router` per host, meshed; worlds and subscribers come and go per step."""
+
+    def __init__(self, netns: Any, net: Any, env: dict[str, str], log_dir: Path) -> None:
+        self.netns, self.net, self.env, self.log_dir = netns, net, env, log_dir
+        self.hosts = list(net.hosts)
+        self.routers: dict[str, Any] = {}
+        self.sims: list[Any] = []
+        self.subscribers: list[Remote] = []
+
+    def start_routers(self) -> None:
+        env = dict(self.env, ZENSIM_ZENOH_MODE="router")
+        for i, host in enumerate(self.hosts):
+            # Each pair of routers once: host i connects to every host before it. A zenoh link carries
+            # both directions, and a router whose peer is not listening yet retries by itself.
+            argv = [sys.executable, "-m", "zensim", "router", "--zenoh-listen", self.endpoint(host)]
+            if i:
+                argv += ["--zenoh-connect", ",".join(self.endpoint(h) for h in self.hosts[:i])]
+            self.routers[host] = self.netns.NsProcess(self.net, host, argv, env, self.log_dir, name=f"router-{host}")
+
+    def endpoint(self, host: str) -> str:
+        return f"tcp/{self.net.address(host)}:{ZENOH_PORT}"
+
+    def robot_ids(self, host: str, worlds: int, per_world: int) -> list[list[str]]:
+        index = self.hosts.index(host)
+        return [[f"h{index}w{w}r{k}" for k in range(per_world)] for w in range(worlds)]
+
+    def start_step(self, worlds: int, per_world: int) -> dict[str, list[str]]:
+        """Start every world and every subscriber; return each host's robot ids."""
+        client = dict(self.env, ZENSIM_ZENOH_MODE="client")
+        ids: dict[str, list[str]] = {}
+        for i, host in enumerate(self.hosts):
+            ids[host] = []
+            for w, world in enumerate(self.robot_ids(host, worlds, per_world)):
+                path = world_file(self.log_dir / f"h{i}w{w}-{per_world}.toml", f"h{i}w{w}", world)
+                argv = [sys.executable, "-m", "zensim", "sim", "--world", str(path)]
+                env = dict(client, ZENSIM_ZENOH_CONNECT=self.endpoint(host))
+                self.sims.append(self.netns.NsProcess(self.net, host, argv, env, self.log_dir, name=f"sim-h{i}w{w}"))
+                ids[host] += world
+        for i, host in enumerate(self.hosts):
+            remote = ids[self.hosts[(i + 1) % len(self.hosts)]]
+            self.subscribers.append(Remote(self.netns, self.net, host, self.env, self.log_dir, self.endpoint(host),
+                                           remote, ids[host][:1]))
+        return ids
+
+    def check_alive(self) -> None:
+        for p in [*self.routers.values(), *self.sims]:
+            if not p.alive():
+                raise RuntimeError(f"{p.name} exited ({p.proc.returncode}):\n{p.log()[-2000:]}")
+
+    def all_subscribers(self, op: str, timeout_s: float = REPLY_TIMEOUT_S) -> list[dict[str, Any]]:
+        for sub in self.subscribers:
+            sub.send(op)
+        return [sub.expect(op, timeout_s) for sub in self.subscribers]
+
+    def window(self, seconds: float) -> dict[str, Any]:
+        """One measured window: router and sim CPU, eth0 bytes, and every subscriber's report."""
+        time.sleep(SETTLE_S)
+        self.check_alive()
+        cpu0 = {h: cpu_s(r.pid) for h, r in self.routers.items()}
+        sims0 = sum(cpu_s(s.pid) for s in self.sims)
+        tx0 = sum(tx_bytes(self.net, h) for h in self.hosts)
+        start = time.monotonic()
+        self.all_subscribers("start")
+        time.sleep(seconds)
+        reports = self.all_subscribers("report")
+        wall = time.monotonic() - start
+        self.check_alive()
+        return {"wall_s": wall,
+                "router_cores": {h: (cpu_s(r.pid) - cpu0[h]) / wall for h, r in self.routers.items()},
+                "sim_cores": (sum(cpu_s(s.pid) for s in self.sims) - sims0) / wall,
+                "tx_bytes_per_s": (sum(tx_bytes(self.net, h) for h in self.hosts) - tx0) / wall,
+                "reports": reports, "load": os.getloadavg()[0]}
+
+    def stop_step(self) -> None:
+        for sub in self.subscribers:
+            sub.stop()
+        self.subscribers.clear()
+        stop_all(self.sims)
+
+    def close(self) -> None:
+        self.stop_step()
+        stop_all(list(self.routers.values()))
+
+
+def stamped_by_sims_router(reports: list[dict[str, Any]]) -> bool | None:
+    """Whether every remote sample was stamped by the router of the sims' own host (so the latency starts
+    there): subscriber k's remote samples carry the one router id that stamps host k+1's own baseline
+    robot. None when there were no samples (the status window)."""
+    stampers = [rep["stampers"] for rep in reports]
+    if not all(s["remote"] and s["local"] for s in stampers):
+        return None
+    return all(s["remote"] == stampers[(k + 1) % len(stampers)]["local"] and len(s["remote"]) == 1
+               for k, s in enumerate(stampers))
+
+
+def summary(phase: str, robots: int, worlds: int, subscribers: int, w: dict[str, Any]) -> dict[str, Any]:
+    """The figures of one window, from the subscribers' reports."""
+    remote = [r for rep in w["reports"] for r in rep["robots"].values() if r["remote"]]
+    windows = [rep["window_s"] for rep in w["reports"]]
+    rates = [r["delivered"] / t for rep, t in zip(w["reports"], windows) for r in rep["robots"].values() if r["remote"]]
+    fractions = [r["delivered"] / r["published"] for r in remote if r["published"]]
+    rtfs = [r["rtf"] for r in remote if r["rtf"] is not None]
+    lat = [x for rep in w["reports"] for x in rep["latency_ms"]["remote"]]
+    local = [x for rep in w["reports"] for x in rep["latency_ms"]["local"]]
+    delivered_per_s = sum(rates)
+    return {"phase": phase, "robots": robots, "worlds": worlds, "subscribers": subscribers,
+            "rate_mean": sum(rates) / len(rates) if rates else 0.0, "rate_min": min(rates, default=0.0),
+            "delivered_fraction_min": min(fractions, default=math.nan),
+            "delivered_per_s": delivered_per_s,
+            "p50_ms": percentile(lat, 50), "p99_ms": percentile(lat, 99),
+            "local_p50_ms": percentile(local, 50), "local_p99_ms": percentile(local, 99),
+            "router_cores": w["router_cores"], "sim_cores": w["sim_cores"],
+            "worst_rtf": min(rtfs, default=math.nan), "missing_rtf": len(remote) - len(rtfs),
+            "tx_mb_per_s": w["tx_bytes_per_s"] / 1e6, "load": w["load"],
+            "stamped_by_sims_router": stamped_by_sims_router(w["reports"]),
+            "unstamped": sum(rep["unstamped"] for rep in w["reports"])}
+
+
+HEADER = ("| G1s | worlds | subs | window | joints/robot/s mean (min) | delivered / published, min "
+          "| latency p50 / p99, ms | same-host p50 / p99, ms | router CPU, cores | sims CPU, cores "
+          "| slowest RTF | across hosts, MB/s | load |")
+
+
+def row(s: dict[str, Any]) -> str:
+    cores = " / ".join(f"{c:.2f}" for c in s["router_cores"].values())
+    if s["phase"] == "status":
+        joints = fraction = latency = local = "-"
+    else:
+        joints = f"{s['rate_mean']:.1f} ({s['rate_min']:.1f})"
+        fraction = f"{s['delivered_fraction_min']:.3f}"
+        latency = f"{s['p50_ms']:.2f} / {s['p99_ms']:.2f}"
+        local = f"{s['local_p50_ms']:.2f} / {s['local_p99_ms']:.2f}"
+    return (f"| {s['robots']} | {s['worlds']} | {s['subscribers']} | {s['phase']} | {joints} | {fraction} "
+            f"| {latency} | {local} | {cores} | {s['sim_cores']:.2f} | {s['worst_rtf']:.3f} "
+            f"| {s['tx_mb_per_s']:.2f} | {s['load']:.1f} |")
+
+
+def run_step(mesh: Mesh, worlds: int, per_world: int, seconds: float) -> list[dict[str, Any]]:
+    robots = len(mesh.hosts) * worlds * per_world
+    mesh.start_step(worlds, per_world)
+    try:
+        for reply in mesh.all_subscribers("wait_status", 130):
+            if not reply["ok"]:
+                mesh.check_alive()
+                raise TimeoutError(f"robots never reported state/sim: {reply['missing']}")
+        results = [summary("status", robots, worlds * len(mesh.hosts), len(mesh.subscribers), mesh.window(seconds))]
+        print(row(results[-1]), flush=True)
+        for reply in mesh.all_subscribers("joints", 40):
+            if not reply["ok"]:
+                raise TimeoutError(f"no state/joints across the mesh from {reply['missing']}")
+        results.append(summary("joints", robots, worlds * len(mesh.hosts), len(mesh.subscribers), mesh.window(seconds)))
+        print(row(results[-1]), flush=True)
+        if not results[-1]["stamped_by_sims_router"] or results[-1]["unstamped"]:
+            print(f"  warning: some samples were not stamped by their sims' router ({results[-1]['unstamped']} "
+                  "unstamped): the latency column does not measure what it says", flush=True)
+        return results
+    finally:
+        mesh.stop_step()
+
+
+def interrupted(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    parser.add_argument("--hosts", type=int, default=3, help="host namespaces, one router each (at least 3)")
+    parser.add_argument("--worlds", type=int, default=2, help="worlds (sim processes) per host")
+    parser.add_argument("--robots-per-world", default="1,2,4,8", help="one step per value")
+    parser.add_argument("--seconds", type=float, default=6.0, help="length of each measured window")
+    parser.add_argument("--json", type=Path, help="also write every figure here")
+    parser.add_argument("--subscriber", metavar="ENDPOINT", help=argparse.SUPPRESS)
+    parser.add_argument("--remote", default="", help=argparse.SUPPRESS)
+    parser.add_argument("--local", default="", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.subscriber:
+        return subscriber_main(args.subscriber, [r for r in args.remote.split(",") if r],
+                               [r for r in args.local.split(",") if r])
+    if args.hosts < 3:
+        parser.error("--hosts must be at least 3 (a mesh)")
+    # SIGTERM unwinds like Ctrl-C, through the `finally`s that stop every process and delete the namespaces.
+    signal.signal(signal.SIGTERM, interrupted)
+    netns = test_scaffolding("netns")
+    env = dict(os.environ, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", ZENSIM_LOG_LEVEL="WARNING", PYTHONUNBUFFERED="1")
+    log_dir = Path(tempfile.mkdtemp(prefix="zensim-mesh-"))
+    results: list[dict[str, Any]] = []
+    print(f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.2f} at the start; {args.hosts} hosts, "
+          f"{args.worlds} worlds per host, {args.seconds:g} s windows; logs in {log_dir}")
+    print(HEADER)
+    print("|" + "---|" * (HEADER.count("|") - 1))
+    with netns.Network([f"h{i}" for i in range(args.hosts)]) as net:
+        mesh = Mesh(netns, net, env, log_dir)
+        try:
+            mesh.start_routers()
+            for per_world in (int(n) for n in args.robots_per_world.split(",")):
+                results += run_step(mesh, args.worlds, per_world, args.seconds)
+        finally:
+            mesh.close()
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
