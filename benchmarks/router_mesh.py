@@ -202,19 +202,18 @@ def subscriber_main(endpoint: str, remote: list[str], local: list[str]) -> int:
 
 # ----- the benchmark: namespaces, routers, worlds, subscribers -----
 
-class Remote:
+class SubscriberProcess:
     """A subscriber process in a host's namespace, driven by JSON lines (see `subscriber_main`)."""
 
-    def __init__(self, netns: Any, net: Any, host: str, env: dict[str, str], log_dir: Path, endpoint: str,
-                 remote: list[str], local: list[str]) -> None:
-        argv = [sys.executable, "-u", str(Path(__file__).resolve()), "--subscriber", endpoint,
+    def __init__(self, mesh: Mesh, host: int, name: str, remote: list[str], local: list[str]) -> None:
+        self.host = host
+        argv = [sys.executable, "-u", str(Path(__file__).resolve()), "--subscriber", mesh.endpoint(host),
                 "--remote", ",".join(remote), "--local", ",".join(local)]
-        self.process = netns.NsProcess(net, host, argv, env, log_dir, name=f"sub-{host}",
-                                       stdin=subprocess.PIPE, capture_stdout=True)
+        self.process = mesh.netns.NsProcess(mesh.net, mesh.hosts[host], argv, mesh.env, mesh.log_dir, name=name,
+                                            stdin=subprocess.PIPE, capture_stdout=True)
         self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
-        self.expect("up")
 
     def _read(self) -> None:
         assert self.process.proc.stdout is not None
@@ -224,6 +223,9 @@ class Remote:
             except ValueError:
                 continue
 
+    def alive(self) -> bool:
+        return self.process.alive()
+
     def send(self, op: str) -> None:
         stdin = self.process.proc.stdin
         assert stdin is not None
@@ -231,22 +233,19 @@ class Remote:
         stdin.flush()
 
     def expect(self, ev: str, timeout_s: float = REPLY_TIMEOUT_S) -> dict[str, Any]:
+        """The next line whose `ev` is `ev`; fails when the process exits or nothing comes in time."""
         deadline = time.monotonic() + timeout_s
         while True:
             try:
                 msg = self.lines.get(timeout=0.2)
             except queue.Empty:
                 if not self.process.alive():
-                    raise RuntimeError(f"subscriber on {self.process.host} exited:\n{self.process.log()[-2000:]}")
+                    raise RuntimeError(f"{self.process.name} exited:\n{self.process.log()[-2000:]}") from None
                 if time.monotonic() > deadline:
-                    raise TimeoutError(f"no {ev!r} from the subscriber on {self.process.host}")
+                    raise TimeoutError(f"no {ev!r} from {self.process.name}") from None
                 continue
             if msg.get("ev") == ev:
                 return msg
-
-    def request(self, op: str, timeout_s: float = REPLY_TIMEOUT_S) -> dict[str, Any]:
-        self.send(op)
-        return self.expect(op, timeout_s)
 
     def stop(self) -> None:
         try:
@@ -278,9 +277,10 @@ def world_file(path: Path, world_id: str, ids: list[str]) -> Path:
     return path
 
 
-def tx_bytes(net: Any, host: str) -> int:
-    """Bytes the host's eth0 has sent: traffic between hosts only (same-host traffic goes over lo)."""
-    out = subprocess.run(["ip", "-n", net.hosts[host].netns, "-s", "-j", "link", "show", "eth0"],
+def link_tx_bytes(net: Any, host: str, link: str) -> int:
+    """Bytes a link of the host has sent. eth0: traffic to other hosts; lo: traffic inside the host
+    (a client connected to its own host's address talks over lo too)."""
+    out = subprocess.run(["ip", "-n", net.hosts[host].netns, "-s", "-j", "link", "show", link],
                          capture_output=True, text=True, check=True, timeout=10).stdout
     return int(json.loads(out)[0]["stats64"]["tx"]["bytes"])
 
@@ -293,52 +293,62 @@ def percentile(values: list[float], p: float) -> float:
 
 
 class Mesh:
-    """The namespaces and one `zensim router` per host, meshed; worlds and subscribers come and go per step."""
+    """The namespaces and one `zensim router` per host, meshed; worlds and subscribers come and go per step.
 
-    def __init__(self, netns: Any, net: Any, env: dict[str, str], log_dir: Path) -> None:
+    Args:
+        watch_hosts: each subscriber watches the robots of this many next hosts (1 .. hosts - 1); with
+            more than 1, a sim's router sends each sample down that many router links.
+        subscribers_per_host: subscriber processes per host, all watching the same robots: the router
+            on their host fans each sample out to all of them.
+    """
+
+    def __init__(self, netns: Any, net: Any, env: dict[str, str], log_dir: Path, watch_hosts: int,
+                 subscribers_per_host: int) -> None:
         self.netns, self.net, self.env, self.log_dir = netns, net, env, log_dir
         self.hosts = list(net.hosts)
-        self.routers: dict[str, Any] = {}
+        self.watch_hosts, self.subscribers_per_host = watch_hosts, subscribers_per_host
+        self.routers: list[Any] = []
         self.sims: list[Any] = []
-        self.subscribers: list[Remote] = []
+        self.subscribers: list[SubscriberProcess] = []
+
+    def endpoint(self, host: int) -> str:
+        return f"tcp/{self.net.address(self.hosts[host])}:{ZENOH_PORT}"
 
     def start_routers(self) -> None:
-        env = dict(self.env, ZENSIM_ZENOH_MODE="router")
         for i, host in enumerate(self.hosts):
             # Each pair of routers once: host i connects to every host before it. A zenoh link carries
             # both directions, and a router whose peer is not listening yet retries by itself.
-            argv = [sys.executable, "-m", "zensim", "router", "--zenoh-listen", self.endpoint(host)]
+            argv = [sys.executable, "-m", "zensim", "router", "--zenoh-listen", self.endpoint(i)]
             if i:
-                argv += ["--zenoh-connect", ",".join(self.endpoint(h) for h in self.hosts[:i])]
-            self.routers[host] = self.netns.NsProcess(self.net, host, argv, env, self.log_dir, name=f"router-{host}")
+                argv += ["--zenoh-connect", ",".join(self.endpoint(j) for j in range(i))]
+            self.routers.append(self.netns.NsProcess(self.net, host, argv, self.env, self.log_dir,
+                                                     name=f"router-h{i}"))
 
-    def endpoint(self, host: str) -> str:
-        return f"tcp/{self.net.address(host)}:{ZENOH_PORT}"
+    def watched(self, host: int) -> list[int]:
+        """The hosts whose robots the subscribers on `host` watch: the next `watch_hosts`, round the ring."""
+        return [(host + k) % len(self.hosts) for k in range(1, self.watch_hosts + 1)]
 
-    def robot_ids(self, host: str, worlds: int, per_world: int) -> list[list[str]]:
-        index = self.hosts.index(host)
-        return [[f"h{index}w{w}r{k}" for k in range(per_world)] for w in range(worlds)]
-
-    def start_step(self, worlds: int, per_world: int) -> dict[str, list[str]]:
-        """Start every world and every subscriber; return each host's robot ids."""
-        client = dict(self.env, ZENSIM_ZENOH_MODE="client")
-        ids: dict[str, list[str]] = {}
+    def start_step(self, worlds: int, per_world: int) -> None:
+        """Start every world (clients of their host's router) and every subscriber."""
+        ids: list[list[str]] = []
         for i, host in enumerate(self.hosts):
-            ids[host] = []
-            for w, world in enumerate(self.robot_ids(host, worlds, per_world)):
+            ids.append([])
+            for w in range(worlds):
+                world = [f"h{i}w{w}r{k}" for k in range(per_world)]
                 path = world_file(self.log_dir / f"h{i}w{w}-{per_world}.toml", f"h{i}w{w}", world)
+                env = dict(self.env, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=self.endpoint(i))
                 argv = [sys.executable, "-m", "zensim", "sim", "--world", str(path)]
-                env = dict(client, ZENSIM_ZENOH_CONNECT=self.endpoint(host))
                 self.sims.append(self.netns.NsProcess(self.net, host, argv, env, self.log_dir, name=f"sim-h{i}w{w}"))
-                ids[host] += world
-        for i, host in enumerate(self.hosts):
-            remote = ids[self.hosts[(i + 1) % len(self.hosts)]]
-            self.subscribers.append(Remote(self.netns, self.net, host, self.env, self.log_dir, self.endpoint(host),
-                                           remote, ids[host][:1]))
-        return ids
+                ids[i] += world
+        for i in range(len(self.hosts)):
+            remote = [rid for h in self.watched(i) for rid in ids[h]]
+            for k in range(self.subscribers_per_host):
+                self.subscribers.append(SubscriberProcess(self, i, f"sub-h{i}s{k}", remote, ids[i][:1]))
+        for sub in self.subscribers:
+            sub.expect("up")
 
     def check_alive(self) -> None:
-        for p in [*self.routers.values(), *self.sims]:
+        for p in [*self.routers, *self.sims]:
             if not p.alive():
                 raise RuntimeError(f"{p.name} exited ({p.proc.returncode}):\n{p.log()[-2000:]}")
 
@@ -348,22 +358,26 @@ class Mesh:
         return [sub.expect(op, timeout_s) for sub in self.subscribers]
 
     def window(self, seconds: float) -> dict[str, Any]:
-        """One measured window: router and sim CPU, eth0 bytes, and every subscriber's report."""
+        """One measured window: router and sim CPU, bytes on the links, and every subscriber's report."""
         time.sleep(SETTLE_S)
         self.check_alive()
-        cpu0 = {h: cpu_s(r.pid) for h, r in self.routers.items()}
+        cpu0 = [cpu_s(r.pid) for r in self.routers]
         sims0 = sum(cpu_s(s.pid) for s in self.sims)
-        tx0 = sum(tx_bytes(self.net, h) for h in self.hosts)
+        eth0 = sum(link_tx_bytes(self.net, h, "eth0") for h in self.hosts)
+        lo0 = sum(link_tx_bytes(self.net, h, "lo") for h in self.hosts)
         start = time.monotonic()
         self.all_subscribers("start")
         time.sleep(seconds)
         reports = self.all_subscribers("report")
         wall = time.monotonic() - start
         self.check_alive()
+        for sub, report in zip(self.subscribers, reports):
+            report["host"] = sub.host
         return {"wall_s": wall,
-                "router_cores": {h: (cpu_s(r.pid) - cpu0[h]) / wall for h, r in self.routers.items()},
+                "router_cores": [(cpu_s(r.pid) - c0) / wall for r, c0 in zip(self.routers, cpu0)],
                 "sim_cores": (sum(cpu_s(s.pid) for s in self.sims) - sims0) / wall,
-                "tx_bytes_per_s": (sum(tx_bytes(self.net, h) for h in self.hosts) - tx0) / wall,
+                "across_bytes_per_s": (sum(link_tx_bytes(self.net, h, "eth0") for h in self.hosts) - eth0) / wall,
+                "inside_bytes_per_s": (sum(link_tx_bytes(self.net, h, "lo") for h in self.hosts) - lo0) / wall,
                 "reports": reports, "load": os.getloadavg()[0]}
 
     def stop_step(self) -> None:
@@ -374,81 +388,94 @@ class Mesh:
 
     def close(self) -> None:
         self.stop_step()
-        stop_all(list(self.routers.values()))
+        stop_all(self.routers)
 
 
-def stamped_by_sims_router(reports: list[dict[str, Any]]) -> bool | None:
-    """Whether every remote sample was stamped by the router of the sims' own host (so the latency starts
-    there): subscriber k's remote samples carry the one router id that stamps host k+1's own baseline
-    robot. None when there were no samples (the status window)."""
-    stampers = [rep["stampers"] for rep in reports]
-    if not all(s["remote"] and s["local"] for s in stampers):
+def stamped_by_sims_router(mesh: Mesh, reports: list[dict[str, Any]]) -> bool | None:
+    """Whether every remote sample was stamped by the router of its sims' host (so the latency starts
+    there): a subscriber's remote samples carry exactly the router ids that stamp the baseline robots
+    of the hosts it watches (the subscribers there see them as local). None when nothing was stamped."""
+    own: dict[int, set[str]] = {}
+    for rep in reports:
+        own.setdefault(rep["host"], set()).update(rep["stampers"]["local"])
+    if not all(own.get(h) for h in range(len(mesh.hosts))) or not all(rep["stampers"]["remote"] for rep in reports):
         return None
-    return all(s["remote"] == stampers[(k + 1) % len(stampers)]["local"] and len(s["remote"]) == 1
-               for k, s in enumerate(stampers))
+    if any(len(ids) != 1 for ids in own.values()):
+        return False
+    return all(set(rep["stampers"]["remote"]) == set().union(*(own[h] for h in mesh.watched(rep["host"])))
+               for rep in reports)
 
 
-def summary(phase: str, robots: int, worlds: int, subscribers: int, w: dict[str, Any]) -> dict[str, Any]:
+def summary(mesh: Mesh, phase: str, robots: int, worlds: int, w: dict[str, Any]) -> dict[str, Any]:
     """The figures of one window, from the subscribers' reports."""
-    remote = [r for rep in w["reports"] for r in rep["robots"].values() if r["remote"]]
-    windows = [rep["window_s"] for rep in w["reports"]]
-    rates = [r["delivered"] / t for rep, t in zip(w["reports"], windows) for r in rep["robots"].values() if r["remote"]]
-    fractions = [r["delivered"] / r["published"] for r in remote if r["published"]]
-    rtfs = [r["rtf"] for r in remote if r["rtf"] is not None]
+    pairs = [(r, rep["window_s"]) for rep in w["reports"] for r in rep["robots"].values() if r["remote"]]
+    rates = [r["delivered"] / t for r, t in pairs]  # per (robot, subscriber) pair
+    fractions = [r["delivered"] / r["published"] for r, _ in pairs if r["published"]]
+    rtfs = [r["rtf"] for r, _ in pairs if r["rtf"] is not None]
     lat = [x for rep in w["reports"] for x in rep["latency_ms"]["remote"]]
     local = [x for rep in w["reports"] for x in rep["latency_ms"]["local"]]
-    delivered_per_s = sum(rates)
-    return {"phase": phase, "robots": robots, "worlds": worlds, "subscribers": subscribers,
+    return {"phase": phase, "robots": robots, "worlds": worlds, "subscribers": len(mesh.subscribers),
+            "watch_hosts": mesh.watch_hosts, "window_s": w["wall_s"],
             "rate_mean": sum(rates) / len(rates) if rates else 0.0, "rate_min": min(rates, default=0.0),
-            "delivered_fraction_min": min(fractions, default=math.nan),
-            "delivered_per_s": delivered_per_s,
-            "p50_ms": percentile(lat, 50), "p99_ms": percentile(lat, 99),
+            "delivered_fraction_min": min(fractions, default=math.nan), "delivered_per_s": sum(rates),
+            "p50_ms": percentile(lat, 50), "p99_ms": percentile(lat, 99), "latency_samples": len(lat),
             "local_p50_ms": percentile(local, 50), "local_p99_ms": percentile(local, 99),
             "router_cores": w["router_cores"], "sim_cores": w["sim_cores"],
-            "worst_rtf": min(rtfs, default=math.nan), "missing_rtf": len(remote) - len(rtfs),
-            "tx_mb_per_s": w["tx_bytes_per_s"] / 1e6, "load": w["load"],
-            "stamped_by_sims_router": stamped_by_sims_router(w["reports"]),
+            "worst_rtf": min(rtfs, default=math.nan), "missing_rtf": len(pairs) - len(rtfs),
+            "across_mb_per_s": w["across_bytes_per_s"] / 1e6, "inside_mb_per_s": w["inside_bytes_per_s"] / 1e6,
+            "load": w["load"], "stamped_by_sims_router": stamped_by_sims_router(mesh, w["reports"]),
             "unstamped": sum(rep["unstamped"] for rep in w["reports"])}
 
 
+def cost_per_sample_us(status: dict[str, Any], joints: dict[str, Any]) -> float:
+    """Router CPU the joints window added over the status window, all routers, per delivered sample, us."""
+    added = sum(joints["router_cores"]) - sum(status["router_cores"])
+    return added / joints["delivered_per_s"] * 1e6 if joints["delivered_per_s"] else math.nan
+
+
 HEADER = ("| G1s | worlds | subs | window | joints/robot/s mean (min) | delivered / published, min "
-          "| latency p50 / p99, ms | same-host p50 / p99, ms | router CPU, cores | sims CPU, cores "
-          "| slowest RTF | across hosts, MB/s | load |")
+          "| latency p50 / p99, ms | same-host p50 / p99, ms | router CPU per router, cores "
+          "| router CPU per delivered sample, us | sims CPU, cores | slowest RTF | across hosts, MB/s "
+          "| inside hosts, MB/s | load |")
 
 
 def row(s: dict[str, Any]) -> str:
-    cores = " / ".join(f"{c:.2f}" for c in s["router_cores"].values())
+    cores = " / ".join(f"{c:.3f}" for c in s["router_cores"])
     if s["phase"] == "status":
-        joints = fraction = latency = local = "-"
+        joints = fraction = latency = local = per_sample = "-"
     else:
         joints = f"{s['rate_mean']:.1f} ({s['rate_min']:.1f})"
         fraction = f"{s['delivered_fraction_min']:.3f}"
         latency = f"{s['p50_ms']:.2f} / {s['p99_ms']:.2f}"
         local = f"{s['local_p50_ms']:.2f} / {s['local_p99_ms']:.2f}"
+        per_sample = f"{s['us_per_sample']:.1f}"
     return (f"| {s['robots']} | {s['worlds']} | {s['subscribers']} | {s['phase']} | {joints} | {fraction} "
-            f"| {latency} | {local} | {cores} | {s['sim_cores']:.2f} | {s['worst_rtf']:.3f} "
-            f"| {s['tx_mb_per_s']:.2f} | {s['load']:.1f} |")
+            f"| {latency} | {local} | {cores} | {per_sample} | {s['sim_cores']:.2f} | {s['worst_rtf']:.3f} "
+            f"| {s['across_mb_per_s']:.2f} | {s['inside_mb_per_s']:.2f} | {s['load']:.1f} |")
 
 
 def run_step(mesh: Mesh, worlds: int, per_world: int, seconds: float) -> list[dict[str, Any]]:
+    """One robot count: the status window, then the joints window, with the same sims running."""
     robots = len(mesh.hosts) * worlds * per_world
+    all_worlds = len(mesh.hosts) * worlds
     mesh.start_step(worlds, per_world)
     try:
         for reply in mesh.all_subscribers("wait_status", 130):
             if not reply["ok"]:
                 mesh.check_alive()
                 raise TimeoutError(f"robots never reported state/sim: {reply['missing']}")
-        results = [summary("status", robots, worlds * len(mesh.hosts), len(mesh.subscribers), mesh.window(seconds))]
-        print(row(results[-1]), flush=True)
+        status = summary(mesh, "status", robots, all_worlds, mesh.window(seconds))
+        print(row(status), flush=True)
         for reply in mesh.all_subscribers("joints", 40):
             if not reply["ok"]:
                 raise TimeoutError(f"no state/joints across the mesh from {reply['missing']}")
-        results.append(summary("joints", robots, worlds * len(mesh.hosts), len(mesh.subscribers), mesh.window(seconds)))
-        print(row(results[-1]), flush=True)
-        if not results[-1]["stamped_by_sims_router"] or results[-1]["unstamped"]:
-            print(f"  warning: some samples were not stamped by their sims' router ({results[-1]['unstamped']} "
-                  "unstamped): the latency column does not measure what it says", flush=True)
-        return results
+        joints = summary(mesh, "joints", robots, all_worlds, mesh.window(seconds))
+        joints["us_per_sample"] = cost_per_sample_us(status, joints)
+        print(row(joints), flush=True)
+        if not joints["stamped_by_sims_router"] or joints["unstamped"]:
+            print(f"  warning: not every sample was stamped by its sims' router ({joints['unstamped']} unstamped): "
+                  "the latency columns do not measure what they say", flush=True)
+        return [status, joints]
     finally:
         mesh.stop_step()
 
@@ -462,6 +489,9 @@ def main() -> int:
     parser.add_argument("--hosts", type=int, default=3, help="host namespaces, one router each (at least 3)")
     parser.add_argument("--worlds", type=int, default=2, help="worlds (sim processes) per host")
     parser.add_argument("--robots-per-world", default="1,2,4,8", help="one step per value")
+    parser.add_argument("--watch-hosts", type=int, default=1,
+                        help="each host's subscribers watch the robots of this many other hosts")
+    parser.add_argument("--subscribers-per-host", type=int, default=1)
     parser.add_argument("--seconds", type=float, default=6.0, help="length of each measured window")
     parser.add_argument("--json", type=Path, help="also write every figure here")
     parser.add_argument("--subscriber", metavar="ENDPOINT", help=argparse.SUPPRESS)
@@ -473,18 +503,21 @@ def main() -> int:
                                [r for r in args.local.split(",") if r])
     if args.hosts < 3:
         parser.error("--hosts must be at least 3 (a mesh)")
+    if not 1 <= args.watch_hosts < args.hosts:
+        parser.error("--watch-hosts must be 1 .. hosts - 1")
     # SIGTERM unwinds like Ctrl-C, through the `finally`s that stop every process and delete the namespaces.
     signal.signal(signal.SIGTERM, interrupted)
     netns = test_scaffolding("netns")
     env = dict(os.environ, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", ZENSIM_LOG_LEVEL="WARNING", PYTHONUNBUFFERED="1")
     log_dir = Path(tempfile.mkdtemp(prefix="zensim-mesh-"))
     results: list[dict[str, Any]] = []
-    print(f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.2f} at the start; {args.hosts} hosts, "
-          f"{args.worlds} worlds per host, {args.seconds:g} s windows; logs in {log_dir}")
+    print(f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.2f} at the start; {args.hosts} hosts, {args.worlds} "
+          f"worlds and {args.subscribers_per_host} subscriber(s) per host, each watching {args.watch_hosts} other "
+          f"host(s); {args.seconds:g} s windows; logs in {log_dir}")
     print(HEADER)
     print("|" + "---|" * (HEADER.count("|") - 1))
     with netns.Network([f"h{i}" for i in range(args.hosts)]) as net:
-        mesh = Mesh(netns, net, env, log_dir)
+        mesh = Mesh(netns, net, env, log_dir, args.watch_hosts, args.subscribers_per_host)
         try:
             mesh.start_routers()
             for per_world in (int(n) for n in args.robots_per_world.split(",")):
