@@ -259,13 +259,15 @@ class SubscriberProcess:
             self.process.proc.stdout.close()
 
 
-def stop_all(processes: list[Any]) -> None:
-    """SIGTERM every process first, then wait for each (and SIGKILL its group if it lingers)."""
+def stop_all(processes: list[Any], timeout_s: float = 5.0) -> None:
+    """SIGTERM every process first, then wait for all of them together for up to `timeout_s`; SIGKILL
+    the process group of any that lingers."""
     for p in processes:
         if p.alive():
             p.proc.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + timeout_s
     for p in processes:
-        p.stop()
+        p.stop(max(0.1, deadline - time.monotonic()))
     processes.clear()
 
 
@@ -505,7 +507,9 @@ def main() -> int:
         parser.error("--hosts must be at least 3 (a mesh)")
     if not 1 <= args.watch_hosts < args.hosts:
         parser.error("--watch-hosts must be 1 .. hosts - 1")
-    # SIGTERM unwinds like Ctrl-C, through the `finally`s that stop every process and delete the namespaces.
+    # SIGINT and SIGTERM unwind through the `finally`s that stop every process and delete the namespaces
+    # (set for SIGINT too: a shell starts background jobs with SIGINT ignored, and Python keeps it so).
+    signal.signal(signal.SIGINT, interrupted)
     signal.signal(signal.SIGTERM, interrupted)
     netns = test_scaffolding("netns")
     env = dict(os.environ, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", ZENSIM_LOG_LEVEL="WARNING", PYTHONUNBUFFERED="1")
@@ -516,14 +520,18 @@ def main() -> int:
           f"host(s); {args.seconds:g} s windows; logs in {log_dir}")
     print(HEADER)
     print("|" + "---|" * (HEADER.count("|") - 1))
-    with netns.Network([f"h{i}" for i in range(args.hosts)]) as net:
-        mesh = Mesh(netns, net, env, log_dir, args.watch_hosts, args.subscribers_per_host)
-        try:
-            mesh.start_routers()
-            for per_world in (int(n) for n in args.robots_per_world.split(",")):
-                results += run_step(mesh, args.worlds, per_world, args.seconds)
-        finally:
-            mesh.close()
+    try:
+        with netns.Network([f"h{i}" for i in range(args.hosts)]) as net:
+            mesh = Mesh(netns, net, env, log_dir, args.watch_hosts, args.subscribers_per_host)
+            try:
+                mesh.start_routers()
+                for per_world in (int(n) for n in args.robots_per_world.split(",")):
+                    results += run_step(mesh, args.worlds, per_world, args.seconds)
+            finally:
+                mesh.close()
+    except KeyboardInterrupt:
+        print("interrupted: every process stopped, the namespaces deleted", file=sys.stderr)
+        return 130
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0
