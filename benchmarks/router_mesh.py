@@ -8,25 +8,32 @@ Needs root and iproute2 (the hosts are namespaces: tests/netns.py, loaded by pat
   pair once: routers never find each other by themselves), so the routers form a full mesh;
 - `--worlds` `zensim sim --world FILE.toml` processes, clients of that router, each world holding the
   step's number of floating G1s (ids `h{host}w{world}r{k}`, on a 2 m grid so they never touch);
-- one subscriber (this file run with `--subscriber`, a plain zenoh client of its own host's router)
-  that watches the robots of the NEXT host: every sample it counts has crossed two routers and one
-  router-to-router link. It also watches one robot of its own host (one router, no mesh) as a baseline.
+- `--subscribers-per-host` subscribers (this file run with `--subscriber`, plain zenoh clients of
+  their own host's router) that watch every robot of the next `--watch-hosts` hosts: every sample
+  they count has crossed two routers and one router-to-router link. Each also watches one robot of
+  its own host (one router, no mesh) as a baseline. With several subscribers per host the router
+  there fans each sample out to all of them; with `--watch-hosts 2` the sims' router sends each
+  sample down two router links.
 
 Per step (robots per world grows), two windows with the same sims running:
 
-1. status only: the subscribers take only `state/sim` (10 Hz per robot) of their remote robots, which
-   gives each world's RTF; the routers carry the sims' own traffic and almost nothing across the mesh;
-2. joints: the subscribers add `state/joints` (100 Hz of sim time per robot) of every remote robot.
+1. status: the subscribers take only `state/sim` (10 Hz per robot) of their remote robots, which
+   gives each world's RTF. A zenoh client sends nothing that nobody subscribed to (the "inside
+   hosts" bytes show it), so this is the routers' cost with the sims up and almost nothing to carry;
+2. joints: the subscribers add `state/joints` (100 Hz of sim time per robot) of every watched robot.
 
-Router CPU is read from /proc (user + system time) over each window; the difference between the two
-windows is what delivering the joints across the mesh costs the routers. Latency: zenoh routers
-stamp every sample that arrives without a timestamp (zenoh's default for routers; the sims send none),
-so a sample's timestamp is when the sim's own router took it in; the subscriber subtracts it from its
-wall clock at the callback (all namespaces share one machine clock). That is router in -> router ->
-subscriber's Python callback, without the sim -> first router hop on loopback. Delivered / published
-compares the samples counted with each robot's `seq` advance over the window (a slow sim publishes
-fewer than 100 a second: that is the sim, not the mesh). Bytes across: every host's eth0 transmit
-counter (same-host traffic stays on loopback), so it is what crossed between routers.
+Router CPU is read from /proc (user + system time) over each window; the joints window's extra CPU
+over the status window, summed over the routers, per delivered sample, is what delivering one sample
+across the mesh costs (two routers on its path). Latency: zenoh routers stamp every sample that
+arrives without a timestamp (zenoh's default for routers; the sims send none), so a sample's
+timestamp is when the sims' own router took it in; the subscriber subtracts it from its wall clock in
+its callback (all namespaces share one machine clock). That is router in -> router -> the
+subscriber's Python callback, without the sim -> first router hop on loopback; the benchmark checks
+that every remote sample was stamped by its sims' router. Delivered / published compares the samples
+counted with each robot's `seq` advance over the window (a slow sim publishes fewer than 100 a
+second: that is the sim, not the mesh). Bytes: the hosts' eth0 transmit counters (what crossed
+between hosts) and lo (inside hosts: clients and their router, which talk over loopback even on the
+host's own address), headers included.
 
 Runs by hand (a few minutes). Prints a markdown table per window; `--json PATH` also writes every figure.
 """
@@ -49,7 +56,7 @@ from typing import Any
 
 import zenoh
 
-from harness import cpu_s, plain_client, test_scaffolding
+from harness import cpu_s, plain_client, test_scaffolding, wait_for
 from zensim.schemas import Codec, JointState, Keys, SimStatus
 
 ZENOH_PORT = 7447
@@ -93,6 +100,7 @@ class Subscriber:
         self.stampers: dict[str, set[str]] = {"remote": set(), "local": set()}
         """Ids of the routers that stamped the samples: remote samples must carry the remote host's router's."""
         self.unstamped = 0
+        self.started = time.time()
         self.seen_status: set[str] = set()
         self.seen_joints: set[str] = set()
         self.subs: list[Any] = []
@@ -161,13 +169,11 @@ class Subscriber:
                     "stampers": {k: sorted(v) for k, v in self.stampers.items()}, "unstamped": self.unstamped}
 
 
-def wait_until(condition: Any, timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
-    return True
+def seen_in_time(condition: Any, timeout_s: float) -> bool:
+    try:
+        return bool(wait_for(condition, timeout_s, "robots", interval_s=0.05))
+    except TimeoutError:
+        return False
 
 
 def subscriber_main(endpoint: str, remote: list[str], local: list[str]) -> int:
@@ -182,11 +188,11 @@ def subscriber_main(endpoint: str, remote: list[str], local: list[str]) -> int:
         for line in sys.stdin:
             op = json.loads(line).get("op")
             if op == "wait_status":
-                ok = wait_until(lambda: sub.seen_status >= set(remote), 120)
+                ok = seen_in_time(lambda: sub.seen_status >= set(remote), 120)
                 reply(ev=op, ok=ok, missing=sorted(set(remote) - sub.seen_status))
             elif op == "joints":
                 sub.subscribe_joints()
-                ok = wait_until(lambda: sub.seen_joints >= set(remote + local), 30)
+                ok = seen_in_time(lambda: sub.seen_joints >= set(remote + local), 30)
                 reply(ev=op, ok=ok, missing=sorted(set(remote + local) - sub.seen_joints))
             elif op == "start":
                 sub.start_window()
