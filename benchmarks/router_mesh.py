@@ -1,13 +1,13 @@
 """The router fan-out cost with real routers: a `zensim router` per host (network namespace), in a mesh.
 
-    .venv/bin/python benchmarks/router_mesh.py --hosts 3 --worlds 2 --robots-per-world 1,2,4,8 --seconds 6
+    .venv/bin/python benchmarks/router_mesh.py --hosts 3 --steps 2x1,2x2,2x4,2x8 --seconds 6
 
 Needs root and iproute2 (the hosts are namespaces: tests/netns.py, loaded by path). Each host runs:
 
 - one `zensim router` listening on its own address, connected to every other host's router (each
   pair once: routers never find each other by themselves), so the routers form a full mesh;
-- `--worlds` `zensim sim --world FILE.toml` processes, clients of that router, each world holding the
-  step's number of floating G1s (ids `h{host}w{world}r{k}`, on a 2 m grid so they never touch);
+- per step `WxR` of `--steps`, W `zensim sim --world FILE.toml` processes, clients of that router,
+  each world holding R floating G1s (ids `h{host}w{world}r{k}`, on a 2 m grid so they never touch);
 - `--subscribers-per-host` subscribers (this file run with `--subscriber`, plain zenoh clients of
   their own host's router) that watch every robot of the next `--watch-hosts` hosts: every sample
   they count has crossed two routers and one router-to-router link. Each also watches one robot of
@@ -15,7 +15,7 @@ Needs root and iproute2 (the hosts are namespaces: tests/netns.py, loaded by pat
   there fans each sample out to all of them; with `--watch-hosts 2` the sims' router sends each
   sample down two router links.
 
-Per step (robots per world grows), two windows with the same sims running:
+Per step, two windows with the same sims running:
 
 1. status: the subscribers take only `state/sim` (10 Hz per robot) of their remote robots, which
    gives each world's RTF. A zenoh client sends nothing that nobody subscribed to (the "inside
@@ -495,8 +495,8 @@ def interrupted(signum: int, frame: object) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("--hosts", type=int, default=3, help="host namespaces, one router each (at least 3)")
-    parser.add_argument("--worlds", type=int, default=2, help="worlds (sim processes) per host")
-    parser.add_argument("--robots-per-world", default="1,2,4,8", help="one step per value")
+    parser.add_argument("--steps", default="2x1,2x2,2x4,2x8",
+                        help="one step per WxR: W worlds (sim processes) per host, R G1s per world")
     parser.add_argument("--watch-hosts", type=int, default=1,
                         help="each host's subscribers watch the robots of this many other hosts")
     parser.add_argument("--subscribers-per-host", type=int, default=1)
@@ -513,6 +513,12 @@ def main() -> int:
         parser.error("--hosts must be at least 3 (a mesh)")
     if not 1 <= args.watch_hosts < args.hosts:
         parser.error("--watch-hosts must be 1 .. hosts - 1")
+    try:
+        steps = [tuple(int(n) for n in step.split("x")) for step in args.steps.split(",")]
+    except ValueError:
+        parser.error("--steps is a list of WxR (worlds per host x robots per world): 2x1,2x4")
+    if not all(len(step) == 2 and min(step) >= 1 for step in steps):
+        parser.error("--steps is a list of WxR (worlds per host x robots per world), each at least 1")
     # SIGINT and SIGTERM unwind through the `finally`s that stop every process and delete the namespaces
     # (set for SIGINT too: a shell starts background jobs with SIGINT ignored, and Python keeps it so).
     signal.signal(signal.SIGINT, interrupted)
@@ -521,8 +527,8 @@ def main() -> int:
     env = dict(os.environ, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", ZENSIM_LOG_LEVEL="WARNING", PYTHONUNBUFFERED="1")
     log_dir = Path(tempfile.mkdtemp(prefix="zensim-mesh-"))
     results: list[dict[str, Any]] = []
-    print(f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.2f} at the start; {args.hosts} hosts, {args.worlds} "
-          f"worlds and {args.subscribers_per_host} subscriber(s) per host, each watching {args.watch_hosts} other "
+    print(f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.2f} at the start; {args.hosts} hosts; "
+          f"{args.subscribers_per_host} subscriber(s) per host, each watching {args.watch_hosts} other "
           f"host(s); {args.seconds:g} s windows; logs in {log_dir}")
     print(HEADER)
     print("|" + "---|" * (HEADER.count("|") - 1))
@@ -531,8 +537,8 @@ def main() -> int:
             mesh = Mesh(netns, net, env, log_dir, args.watch_hosts, args.subscribers_per_host)
             try:
                 mesh.start_routers()
-                for per_world in (int(n) for n in args.robots_per_world.split(",")):
-                    results += run_step(mesh, args.worlds, per_world, args.seconds)
+                for worlds, per_world in steps:
+                    results += run_step(mesh, worlds, per_world, args.seconds)
             finally:
                 mesh.close()
     except KeyboardInterrupt:
