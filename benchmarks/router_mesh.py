@@ -229,9 +229,6 @@ class SubscriberProcess:
             except ValueError:
                 continue
 
-    def alive(self) -> bool:
-        return self.process.alive()
-
     def send(self, op: str) -> None:
         stdin = self.process.proc.stdin
         assert stdin is not None
