@@ -2,9 +2,10 @@
 
 Benchmarks run by hand (`python benchmarks/<name>.py`), so this folder is on sys.path and
 `from harness import ...` needs nothing else. They do not import the test suite's helpers: a
-benchmark must keep working however the tests are arranged. Two pieces of test scaffolding are too
-big to keep twice (the headless chromium driver, tests/browser.py, and the SDK-style DDS client,
-tests/unitree_sdk.py): `test_scaffolding` loads them by path, in this one place.
+benchmark must keep working however the tests are arranged. Three pieces of test scaffolding are too
+big to keep twice (the headless chromium driver, tests/browser.py, the SDK-style DDS client,
+tests/unitree_sdk.py, and the network namespaces, tests/netns.py): `test_scaffolding` loads them by
+path, in this one place.
 """
 
 from __future__ import annotations
@@ -176,7 +177,8 @@ class Latest:
 
 
 def test_scaffolding(name: str) -> ModuleType:
-    """tests/<name>.py loaded by its path: `browser` (headless chromium) or `unitree_sdk` (SDK-style client)."""
+    """tests/<name>.py loaded by its path: `browser` (headless chromium), `unitree_sdk` (SDK-style client)
+    or `netns` (network namespaces as hosts)."""
     path = REPO / "tests" / f"{name}.py"
     spec = importlib.util.spec_from_file_location(f"zensim_test_scaffolding.{name}", path)
     assert spec is not None and spec.loader is not None, path
