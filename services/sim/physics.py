@@ -188,6 +188,8 @@ class Simulation:
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self._actuators = actuator_index(robot)
+        self._safe = MotorTargets.hold(robot, robot.default_q)
+        """What the watchdog holds: the default pose on the configured gains."""
         """The robot's actuators, as write_actuators takes them."""
         self.steps = 0
         # A URDF without limits gives inf (or 0): the bound then falls back to a figure no motor exceeds.
@@ -398,10 +400,7 @@ class Simulation:
         return self._targets
 
     def _safe_targets(self) -> MotorTargets:
-        safe = getattr(self, "_safe", None)
-        if safe is None or safe[0] is not self.robot:
-            safe = self._safe = (self.robot, MotorTargets.hold(self.robot, self.robot.default_q))
-        return safe[1]
+        return self._safe
 
     # --- stepping --------------------------------------------------------
 
