@@ -171,14 +171,26 @@ class World:
     def timestep_s(self) -> float:
         return float(self.model.opt.timestep)
 
-    def step(self, n: int = 1) -> None:
-        """(physics lock held) Advance every robot `n` steps together, each with its own targets."""
+    def step(self, n: int = 1, held: bool = False) -> None:
+        """(physics lock held) Advance every robot `n` steps together, each with its own targets.
+
+        `held`: the targets are the same for all `n` steps (world/advance: commands land between advances),
+        so MuJoCo runs the middle steps in one call, without handing the GIL back and forth at each
+        (Simulation.step says why a step is mj_step2 then mj_step1; mj_step2, mj_step n-1 times, mj_step1
+        is that sequence to the bit, tests/test_world.py).
+        """
         model, data, sims = self.model, self.data, self._sims
         now = time.monotonic()
         check_watchdog = now >= self._next_watchdog_check
         if check_watchdog:
             self._next_watchdog_check = now + WATCHDOG_CHECK_PERIOD_S
-        for _ in range(n):
+        if held and n > 1:
+            for sim in sims:
+                sim.apply_targets(check_watchdog)
+            mujoco.mj_step2(model, data)
+            mujoco.mj_step(model, data, nstep=n - 1)
+            mujoco.mj_step1(model, data)
+        for _ in range(0 if held and n > 1 else n):
             for sim in sims:
                 sim.apply_targets(check_watchdog)
             check_watchdog = False
@@ -426,7 +438,7 @@ class WorldService:
                 return self._reply(ok=False, error=bounded(f"robot {robot}: {exc}; nothing was applied"))
         for robot, command in request.commands.items():
             sims[robot].accept_command(command, checked[robot])
-        self.world.step(self.settings.lockstep_steps)
+        self.world.step(self.settings.lockstep_steps, held=True)
         self._after_steps()
         states = self._unpublished = self._read_states()  # published once the client has its reply
         return WorldAdvanceReply(ok=True, sim_time_s=float(self.world.data.time), steps=self.world.steps,
