@@ -291,7 +291,8 @@ def settings_table(cls: type[msgspec.Struct]) -> str:
         for part in path:
             value = value.get(part) if isinstance(value, dict) else None
         shown = ",".join(map(str, value)) if isinstance(value, (list, tuple)) else ("" if value is None else str(value).lower() if isinstance(value, bool) else value)
-        rows.append(f"| `{env_name}` | `--{name.replace('_', '-')}` | `{shown}` | {doc} |")
+        meaning = " ".join(doc.split())  # a docstring of several lines is one table row
+        rows.append(f"| `{env_name}` | `--{name.replace('_', '-')}` | `{shown}` | {meaning} |")
     return "\n".join(rows) + "\n"
 
 
