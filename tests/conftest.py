@@ -4,6 +4,7 @@ and a plain zenoh session in the test process."""
 from __future__ import annotations
 
 import os
+import sys
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -12,6 +13,15 @@ import pytest
 import zenoh
 
 from support import Service, free_port, plain_client, wait_for
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """Close the DDS clients tests opened in this process (tests/unitree_sdk.py says why), while the
+    interpreter is still whole: left to its exit, Cyclone's receive thread spun on their closed sockets."""
+    sdk = sys.modules.get("unitree_sdk")
+    if sdk is not None:
+        for client in list(sdk.OPEN_CLIENTS):
+            client.close()
 
 
 @pytest.fixture(scope="session")

@@ -130,14 +130,22 @@ def test_a_reset_whose_client_gave_up_is_dropped_not_run(start_service, zsession
     wait_alive(zsession, keys)
     before = status.wait(what="a status")
     long_steps = []
+    # How long 100000 steps keep the loop busy here (2-4 s): from a fifth of them, timed.
+    calibrated = time.monotonic()
+    assert ctl(zsession, keys.ctl("step"), {"n": 20000}, timeout_s=60)["ok"]
+    busy_s = 5 * (time.monotonic() - calibrated)
+    before = status.wait(lambda m: m.steps >= before.steps + 20000, what="a status after the calibration")
 
-    def step() -> None:  # 2 x 100000 steps keep the loop busy for seconds
+    def step() -> None:
         long_steps.append(ctl(zsession, keys.ctl("step"), {"n": 100000}, timeout_s=120))
 
+    # The second step is queued so that it waits ~1.5 s (it runs: under the 2 s start timeout), and the reset
+    # right behind it then waits that plus the second step's run: well past 2 s, so it must be dropped.
     steppers = [threading.Thread(target=step) for _ in range(2)]
-    for stepper in steppers:
-        stepper.start()
-        time.sleep(0.2)
+    steppers[0].start()
+    time.sleep(max(0.2, busy_s - 1.5))
+    steppers[1].start()
+    time.sleep(0.05)
     started = time.monotonic()
     replies = list(zsession.get(keys.ctl("reset"), payload=b"{}", timeout=1.0))  # gives up after 1 s
     gave_up_after = time.monotonic() - started

@@ -93,10 +93,20 @@ def new_low_cmd() -> LowCmd_:
     return LowCmd_(motor_cmd=[MotorCmd_() for _ in range(35)])
 
 
+OPEN_CLIENTS: list[SdkClient] = []
+"""Clients not closed yet (conftest.py closes them after each test)."""
+
+
 class SdkClient:
-    """One DDS participant with the SDK's low-level channels and a motion-switcher client."""
+    """One DDS participant with the SDK's low-level channels and a motion-switcher client.
+
+    Close it (conftest.py does, after every test): Cyclone keeps every entity in a class-level table, so
+    an unclosed participant and its sockets live as long as the pytest process, and at its exit Cyclone's
+    receive thread spun on the closed sockets (30 000 `recvUC ... retcode -52` lines in a CI log).
+    """
 
     def __init__(self, domain_id: int, interface: str = "lo") -> None:
+        OPEN_CLIENTS.append(self)
         self.domain = Domain(domain_id, domain_config(interface))
         self.participant = DomainParticipant(domain_id)
         self.lowcmd = DataWriter(self.participant, Topic(self.participant, "rt/lowcmd", LowCmd_))
@@ -107,6 +117,13 @@ class SdkClient:
         self.requests = DataWriter(self.participant, Topic(self.participant, "rt/api/motion_switcher/request", Request_))
         self.responses = DataReader(self.participant, Topic(self.participant, "rt/api/motion_switcher/response", Response_))
         self._lock = threading.Lock()
+
+    def close(self) -> None:
+        """Delete the participant (with its readers and writers) and the domain: their sockets close now."""
+        if self in OPEN_CLIENTS:
+            OPEN_CLIENTS.remove(self)
+            self.participant.__del__()
+            self.domain.__del__()
 
     def latest_state(self) -> LowState_ | None:
         samples = [s for s in self.lowstate.take(N=8) if isinstance(s, LowState_)]
