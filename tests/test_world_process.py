@@ -367,3 +367,31 @@ def test_a_world_id_is_taken_while_the_world_runs(
     alone = start_service("sim", "--mode", "fixed", env={"ZENSIM_ROBOT_ID": world["world"]})
     assert alone.proc.wait(60) == 2, alone.log()
     assert "already served by a world" in alone.log(), alone.log()
+
+
+def test_a_flood_of_bad_commands_to_every_robot_is_counted_per_robot_and_logged_once_a_second(
+    start_service: Callable[..., Service], zsession: zenoh.Session, world: dict[str, str]
+) -> None:
+    """Malformed, NaN, absurd and oversize commands to all three robots at once: each robot counts its own,
+    the world keeps time, and the log holds one line a second for all robots together, not one per robot."""
+    robots = [world["a"], world["b"], world["arm"]]
+    sim = start_service("sim", "--world", world["file"])
+    status = {r: Latest(zsession, Keys(r).sim_status, SimStatus) for r in robots}
+    for r in robots:
+        status[r].wait(lambda s: s.sim_time_s > 0.3, 60, f"{r} running")
+    before = {r: status[r].value for r in robots}
+    bad = [b"\xff\xfe", b"[" * 10000, b'{"q": [NaN]}', json.dumps({"q": [1e300, 1e300]}).encode(), bytes(100_000)]
+    started = time.monotonic()
+    while time.monotonic() - started < 4.0:
+        for payload in bad:
+            for r in robots:
+                zsession.put(Keys(r).motors, payload)
+        time.sleep(0.002)
+    flood_s = time.monotonic() - started
+    time.sleep(1.2)  # the next status of every robot, and the limiter's last line
+    for r in robots:
+        after = status[r].wait(lambda s: s.seq > before[r].seq + 20, 10, f"{r}'s status after the flood")
+        assert after.rejected_commands - before[r].rejected_commands > 100, (r, after.rejected_commands)
+        assert after.sim_time_s - before[r].sim_time_s > 0.8 * flood_s, "the world kept time"
+    lines = [line for line in sim.log().splitlines() if "rejected command" in line]
+    assert 1 <= len(lines) <= flood_s + 3, f"{len(lines)} lines in {flood_s:.1f} s:\n" + "\n".join(lines[:10])

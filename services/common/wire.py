@@ -81,14 +81,17 @@ class Refusals:
         logger: where the warnings go.
         what: how the log line names the inputs (`command`, `request`).
         period_s: at most one log line per period; the rest are counted in the next line.
+        log: a limiter shared with other counters (a world's robots share one, so a flood to all of them
+            is still one line per period); None: one of its own.
     """
 
-    def __init__(self, logger: logging.Logger, what: str, period_s: float = 1.0) -> None:
+    def __init__(self, logger: logging.Logger, what: str, period_s: float = 1.0,
+                 log: RateLimitedLog | None = None) -> None:
         self.what = what
         self.count = 0
         self.last_error: str | None = None
         self._lock = threading.Lock()
-        self._log = RateLimitedLog(logger, period_s)
+        self._log = log or RateLimitedLog(logger, period_s)
 
     def refuse(self, key: object, reason: str) -> str:
         """Count one refused input; returns the bounded reason (for a reply or a report)."""

@@ -188,9 +188,9 @@ class Simulation:
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self._actuators = actuator_index(robot)
+        """The robot's actuators, as write_actuators takes them."""
         self._safe = MotorTargets.hold(robot, robot.default_q)
         """What the watchdog holds: the default pose on the configured gains."""
-        """The robot's actuators, as write_actuators takes them."""
         self.steps = 0
         # A URDF without limits gives inf (or 0): the bound then falls back to a figure no motor exceeds.
         effort, velocity = robot.effort_limit, robot.velocity_limit

@@ -40,6 +40,7 @@ from pathlib import Path
 import msgspec
 import zenoh
 
+from zensim.common.logs import RateLimitedLog
 from zensim.common.pacing import Pacer
 from zensim.common.claim import current_owner, taken_message
 from zensim.common.session import StartupError
@@ -156,9 +157,11 @@ class SimService:
     """Runs a Simulation in real time and connects it to Zenoh."""
 
     def __init__(self, session: zenoh.Session, settings: SimSettings, sim: Simulation, stop: threading.Event,
-                 world: tuple[WorldClock, PhysicsLock] | None = None) -> None:
+                 world: tuple[WorldClock, PhysicsLock] | None = None,
+                 refusal_logs: tuple[RateLimitedLog, RateLimitedLog] | None = None) -> None:
         """`world`: the clock and physics lock a robot of a world shares with the others (world.py);
-        None for a robot alone, whose loop is `run`."""
+        None for a robot alone, whose loop is `run`. `refusal_logs`: the log limiters for refused commands
+        and requests, shared by a world's robots; None: this robot's own."""
         self.session = session
         self.settings = settings
         self.sim = sim
@@ -173,8 +176,9 @@ class SimService:
         self.requests = Requests(lambda reason: self._status_reply(ok=False, error=reason, off_loop=True))
         self.shed_commands = 0
         """Commands shed unread (a newer one from the same source waited); written by the command thread only."""
-        self.command_refusals = Refusals(logger, "command")
-        self.request_refusals = Refusals(logger, "request")
+        command_log, request_log = refusal_logs or (None, None)
+        self.command_refusals = Refusals(logger, "command", log=command_log)
+        self.request_refusals = Refusals(logger, "request", log=request_log)
         self.command_codec = Codec(topics.MOTORS.message_type())
         self.reply_codec = Codec(CtlReply)
         self.info_codec = Codec(RobotInfo)

@@ -34,6 +34,7 @@ import numpy as np
 import zenoh
 
 from zensim.common.claim import current_owner, taken_message
+from zensim.common.logs import RateLimitedLog
 from zensim.common.pacing import Pacer
 from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, decode_input, payload_of
@@ -251,9 +252,10 @@ class WorldService:
         self.run_id = uuid.uuid4().hex[:16]
         self.clock = WorldClock(settings.paused, Pacer(world.timestep_s, settings.rtf))
         self.physics = PhysicsLock()
+        refusal_logs = (RateLimitedLog(logger), RateLimitedLog(logger))  # a flood to every robot: one line a second
         self.robots = [
             SimService(session, msgspec.structs.replace(settings, robot_id=robot_id), sim, stop,
-                       world=(self.clock, self.physics))
+                       world=(self.clock, self.physics), refusal_logs=refusal_logs)
             for robot_id, sim in world.sims.items()
         ]
         self._by_sim = {id(robot.sim): robot for robot in self.robots}
