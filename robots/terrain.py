@@ -24,13 +24,16 @@ import msgspec
 import mujoco
 import numpy as np
 
+from zensim.schemas.codec import short_repr
 from zensim.schemas.messages import (
+    MAX_TERRAIN_FEATURES,
     RoughGround,
     Slope,
     Stairs,
     SteppingStones,
     Terrain,
     TerrainBox,
+    TerrainFeature,
 )
 
 if TYPE_CHECKING:  # builder imports this module; a Robot is only read here
@@ -58,7 +61,9 @@ class TerrainError(ValueError):
 
 
 # ------------------------------------------------------------------------------------------ reading
-_TYPES: Final = {cls.__struct_config__.tag: cls for cls in (Slope, Stairs, RoughGround, SteppingStones, TerrainBox)}
+_TYPES: Final[dict[object, type[TerrainFeature]]] = {
+    cls.__struct_config__.tag: cls for cls in (Slope, Stairs, RoughGround, SteppingStones, TerrainBox)}
+"""Each feature's struct by its `type` (its msgspec tag)."""
 
 
 def terrain_from_table(table: Any) -> Terrain:
@@ -71,19 +76,22 @@ def terrain_from_table(table: Any) -> Terrain:
         raise TerrainError("a terrain is a table with a `features` list")
     unknown = sorted(set(table) - {"features"})
     if unknown:
-        raise TerrainError(f"unknown key(s) {', '.join(map(repr, unknown[:3]))}; a terrain has only `features`")
+        raise TerrainError(f"unknown key(s) {', '.join(map(short_repr, unknown[:3]))}; a terrain has only `features`")
     features = table.get("features", [])
     if not isinstance(features, list):
         raise TerrainError("`features` must be a list of tables ([[features]])")
-    for i, feature in enumerate(features[:1000]):
+    if len(features) > MAX_TERRAIN_FEATURES:  # before any feature is looked at
+        raise TerrainError(f"{len(features)} features: a terrain has at most {MAX_TERRAIN_FEATURES}")
+    for i, feature in enumerate(features):
         if not isinstance(feature, dict):
             raise TerrainError(f"features[{i}] must be a table")
-        kind = _TYPES.get(feature.get("type"))  # type: ignore[arg-type]
+        kind = _TYPES.get(feature.get("type"))
         if kind is None:
-            raise TerrainError(f"features[{i}]: `type` must be one of {', '.join(_TYPES)}, got {feature.get('type')!r}")
+            known = ", ".join(map(str, _TYPES))
+            raise TerrainError(f"features[{i}]: `type` must be one of {known}, got {short_repr(feature.get('type'))}")
         extra = sorted(set(feature) - {"type", *kind.__struct_fields__})
         if extra:
-            raise TerrainError(f"features[{i}] ({feature['type']}): unknown key(s) {', '.join(map(repr, extra[:3]))}")
+            raise TerrainError(f"features[{i}] ({feature['type']}): unknown key(s) {', '.join(map(short_repr, extra[:3]))}")
     try:
         return msgspec.convert(table, Terrain)
     except msgspec.ValidationError as exc:

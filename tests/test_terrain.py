@@ -237,7 +237,7 @@ class TestRefusals:
 
     def test_too_many_features_and_bad_shapes(self) -> None:
         box = {"type": "box", "size_m": [0.1, 0.1, 0.1], "pos": [0, 0, 0.05]}
-        for table, said in [({"features": [box] * 65}, "<= 64"), ({"features": box}, "list"), ([box], "table"),
+        for table, said in [({"features": [box] * 65}, "at most 64"), ({"features": box}, "list"), ([box], "table"),
                             ({"features": [box], "seed": 3}, "'seed'"), ({"features": [3]}, "features[0]")]:
             with pytest.raises(TerrainError) as caught:
                 terrain_from_table(table)
