@@ -15,11 +15,12 @@ import pytest
 
 from browser import Browser, chromium_binary, decode_png
 from support import REPO, Latest, free_port, wait_for
-from test_record_process import start_recorder, stop_recorder
+from test_lockstep_process import advance, scripted_command
+from test_record_process import start_recorder, stop_recorder, zensim
 from test_sim_process import robot_info, wait_alive
 from zensim.mcapfile import read_recording
 from zensim.robots.terrain import load_terrain
-from zensim.schemas import Keys, Odometry, SimStatus
+from zensim.schemas import JointState, Keys, Odometry, SimStatus
 
 PLATFORM_M = 0.3
 TERRAIN = f"""
@@ -173,6 +174,26 @@ def test_a_recording_carries_the_terrain_and_its_replay_serves_it(start_service,
     import msgspec
 
     assert robot_info(zsession, Keys(replay_id))["terrain"] == json.loads(msgspec.json.encode(terrain))
+
+
+def test_a_lockstep_run_on_terrain_resims_to_zero(start_service, zsession, robot_id, tmp_path, terrain_file) -> None:
+    """resim rebuilds the recorded terrain (RobotInfo.terrain): without it the feet would meet the floor
+    0.3 m lower than the platform they stood on, and the run would not repeat."""
+    keys = Keys(robot_id)
+    joints = Latest(zsession, keys.joints, JointState)
+    start_service("sim", "--clock", "lockstep", "--terrain", str(terrain_file))
+    wait_alive(zsession, keys)
+    path = tmp_path / "run.mcap"
+    recorder = start_recorder(start_service, path, zsession, keys)
+    info = robot_info(zsession, keys)
+    q = list(joints.wait(what="the initial state").q)
+    for k in range(80):  # 1.6 s: the robot lands on the platform and swings on it
+        q = advance(zsession, keys, scripted_command(k, info, q))["joints"]["q"]
+    time.sleep(0.3)  # the last states reach the recorder
+    stop_recorder(recorder)
+    result = zensim("resim", str(path))
+    assert result.returncode == 0, result.stderr
+    assert "joint position 0 rad, base position 0 m, base orientation 0 rad" in result.stdout, result.stdout
 
 
 @pytest.fixture
