@@ -85,10 +85,11 @@ def terrain_from_table(table: Any) -> Terrain:
     for i, feature in enumerate(features):
         if not isinstance(feature, dict):
             raise TerrainError(f"features[{i}] must be a table")
-        kind = _TYPES.get(feature.get("type"))
+        tag = feature.get("type")
+        kind = _TYPES.get(tag) if isinstance(tag, str) else None  # a list or table is no `type` (nor hashable)
         if kind is None:
             known = ", ".join(map(str, _TYPES))
-            raise TerrainError(f"features[{i}]: `type` must be one of {known}, got {short_repr(feature.get('type'))}")
+            raise TerrainError(f"features[{i}]: `type` must be one of {known}, got {short_repr(tag)}")
         extra = sorted(set(feature) - {"type", *kind.__struct_fields__})
         if extra:
             raise TerrainError(f"features[{i}] ({feature['type']}): unknown key(s) {', '.join(map(short_repr, extra[:3]))}")

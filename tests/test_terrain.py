@@ -218,6 +218,7 @@ BAD = {
     "a slope rising a kilometre": ({"type": "slope", "angle_deg": 60, "length_m": 100}, "rises"),
     "a vertical slope": ({"type": "slope", "angle_deg": 90, "length_m": 1}, "angle_deg"),
     "an unknown type": ({"type": "lava", "size_m": [1, 1]}, "`type` must be one of"),
+    "a type that is a list": ({"type": ["box"], "size_m": [1, 1, 1]}, "`type` must be one of"),
     "a misspelt key": ({"type": "slope", "angle_deg": 10, "length_m": 3, "widht_m": 2}, "widht_m"),
     "a wrong type": ({"type": "stairs", "step_height_m": "high", "step_depth_m": 0.3, "count": 3}, "step_height_m"),
 }
@@ -232,7 +233,7 @@ class TestRefusals:
             terrain_from_table({"features": [good, feature]})
         message = str(caught.value)
         assert said in message and "\n" not in message and len(message) < 300, message
-        if case not in ("an unknown type", "a misspelt key", "a huge grid of stones"):
+        if case not in ("an unknown type", "a type that is a list", "a misspelt key", "a huge grid of stones"):
             assert "features[1]" in message, message  # says which feature
 
     def test_too_many_features_and_bad_shapes(self) -> None:
