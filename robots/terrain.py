@@ -284,7 +284,7 @@ def add_to_spec(spec: mujoco.MjSpec, terrain: Terrain, contype: int, conaffinity
         world.add_geom(name=f"terrain_slope_{i}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"terrain_slope_{i}",
                        **common)
     for i, field in enumerate(shapes.fields):
-        top = float(field.heights.max())
+        top = max(float(field.heights.max()), 1e-6)  # never 0: the data is divided by it
         rows, cols = field.heights.shape
         # MuJoCo scales the field's data (0..1) by size[2]: the highest point gives the scale.
         spec.add_hfield(name=f"terrain_rough_{i}", size=[*field.half, top, HFIELD_BASE_M], nrow=rows, ncol=cols,

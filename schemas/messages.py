@@ -607,7 +607,7 @@ class RoughGround(Message, frozen=True, tag="rough", kw_only=True):
 
     size_m: tuple[Size, Size]
     """Extent along world x and y, m."""
-    amplitude_m: Annotated[float, msgspec.Meta(gt=0, le=1)]
+    amplitude_m: Annotated[float, msgspec.Meta(ge=0.001, le=1)]
     """Highest bump, m."""
     cell_m: Annotated[float, msgspec.Meta(ge=0.01, le=10)]
     """Grid spacing, m (rounded so that whole cells fill size_m)."""
