@@ -15,6 +15,7 @@ Cases:
             stones, boxes): the terrain is in the model, the robot stands on the floor next to it
   platform  the robot stands on a box (its feet touch the terrain instead of the floor)
   rough     the robot stands on rough ground (amplitude 1 cm, 5 cm cells): its feet touch the height field
+  rough-10  the same with 10 cm cells (fewer cells under each foot: fewer contacts)
 
 Results go to stdout; docs/benchmarks.md keeps the figures.
 """
@@ -48,6 +49,8 @@ CASES: dict[str, Terrain | None] = {
     "platform": terrain_from_table({"features": [{"type": "box", "size_m": [1, 1, 0.3], "pos": [0, 0, 0.15]}]}),
     "rough": terrain_from_table({"features": [
         {"type": "rough", "size_m": [2, 2], "amplitude_m": 0.01, "cell_m": 0.05, "seed": 3}]}),
+    "rough-10": terrain_from_table({"features": [
+        {"type": "rough", "size_m": [2, 2], "amplitude_m": 0.01, "cell_m": 0.1, "seed": 3}]}),
 }
 SETTLE_S = 1.0
 """Sim time each case stands before it is timed: the drop from the spawn height is over."""
