@@ -5,6 +5,7 @@ absurd terrain files refused whole with one line. Real MuJoCo, no processes (tes
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import msgspec
@@ -269,3 +270,32 @@ class TestRefusals:
             codec.decode(msgspec.json.encode(dict(info, terrain={"features": [rough]})))
         decoded = codec.decode(msgspec.json.encode(dict(info, terrain=COURSE)))
         assert decoded.terrain == terrain_from_table(COURSE)
+
+
+class TestDrawing:
+    """What the viewer sends the page for a terrain (services/viz/terrain.py): the shapes the model holds."""
+
+    def test_every_shape_is_drawn_under_terrain_and_flat_only_clears_it(self) -> None:
+        with warnings.catch_warnings():  # meshcat imports pyzmq's deprecated ioloop (warnings are errors here)
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import umsgpack
+
+            from zensim.viz.terrain import terrain_commands
+        from zensim.robots.terrain import geometry
+
+        terrain = terrain_from_table(COURSE)
+        shapes = geometry(terrain)
+        commands = [umsgpack.unpackb(c) for c in terrain_commands(terrain)]
+        assert commands[0] == {"type": "delete", "path": "/terrain"}
+        drawn = [c for c in commands if c["type"] == "set_object"]
+        assert len(drawn) == len(shapes.blocks) + len(shapes.prisms) + len(shapes.fields) == 4 + 3 + 6 + 1 + 1 + 1
+        assert all(c["path"].startswith("/terrain/") for c in drawn)
+        kinds = [c["object"]["geometries"][0]["type"] for c in drawn]
+        assert kinds.count("BoxGeometry") == len(shapes.blocks) and kinds.count("BufferGeometry") == 2
+        # The rough patch is drawn at its grid: one vertex per grid point, at the model's heights.
+        field = shapes.fields[0]
+        rough = drawn[-1]["object"]["geometries"][0]["data"]["attributes"]["position"]
+        vertices = np.frombuffer(rough["array"].data, np.float32).reshape(-1, 3)  # meshcat's float32 typed array
+        assert rough["itemSize"] == 3 and len(vertices) == field.heights.size
+        np.testing.assert_allclose(np.sort(vertices[:, 2]), np.sort(field.heights.ravel()), atol=1e-6)
+        assert [umsgpack.unpackb(c) for c in terrain_commands(None)] == [{"type": "delete", "path": "/terrain"}]
