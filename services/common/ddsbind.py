@@ -1,4 +1,4 @@
-"""Keep Cyclone DDS's sockets on a loopback interface when the adapter is told to use one.
+"""Keep Cyclone DDS's sockets on a loopback interface when a DDS edge (the Unitree adapter, zensim ros2) is told to use one.
 
 Cyclone DDS 0.10 binds its receive sockets (discovery and data, unicast and multicast) to 0.0.0.0
 whatever interface it is configured for, and has no setting to change that (cyclonedds issue 1923:
