@@ -48,6 +48,7 @@ class Keys:
     bridge_targets: str
     unitree_status: str
     ros1_status: str
+    ros2_status: str
     motors: str
     joint_targets: str
     joint_target_any: str
