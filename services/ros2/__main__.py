@@ -21,7 +21,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     # The face sends what the bridge's clients send (cmd/joints) and reads what they read: its own role
     # in a secured setup (docs/security.md).
-    return serve(PROG, settings, run, role="ros2")
+    # zenoh-ext's advanced publisher (the cache a late ROS 2 subscription reads latched topics from, as
+    # rmw_zenoh's do) orders its samples by timestamp: the session must stamp them.
+    return serve(PROG, settings, run, role="ros2", extra_config={"timestamping/enabled": True})
 
 
 if __name__ == "__main__":

@@ -18,8 +18,7 @@ locators on them (Cyclone drops a participant whose addresses are on none of its
 socket is then tied to `lo` (common/ddsbind.py): only processes of this machine are heard.
 """
 
-from __future__ import annotations
-
+# No `from __future__ import annotations` here: Cyclone DDS reads the type class's annotations at run time.
 import logging
 import socket
 import threading
