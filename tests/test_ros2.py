@@ -19,7 +19,7 @@ from zensim.ros2.cdr import CdrError, CdrReader
 from zensim.ros2.mapping import Ros2Names, check_twist, forward_command, trajectory_goal
 from zensim.ros2.rmw_zenoh import Node, Qos, attachment, data_key, mangle, read_attachment
 
-rclpy_serialization = pytest.importorskip("rclpy.serialization", reason="the ROS 2 wheels: pip install -e '.[test]'")
+import rclpy.serialization as rclpy_serialization  # noqa: E402 - the ROS 2 wheels, in the `test` extra
 from nav_msgs.msg import Odometry  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import Imu, JointState  # noqa: E402

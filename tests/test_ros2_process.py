@@ -26,7 +26,7 @@ import zenoh.ext
 from support import Latest, Service, ctl, free_port, plain_client, wait_for
 from zensim.schemas import JointState, Keys, Odometry, Ros2Status
 
-rclpy_serialization = pytest.importorskip("rclpy.serialization", reason="the ROS 2 wheels: pip install -e '.[test]'")
+import rclpy.serialization as rclpy_serialization  # noqa: E402 - the ROS 2 wheels, in the `test` extra
 from nav_msgs.msg import Odometry as RosOdometry  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import Imu as RosImu  # noqa: E402
