@@ -95,7 +95,7 @@ def _named_type(ros_type: RosType) -> type[IdlStruct]:
     name = ros_type.dds_name
     if name not in _TYPES:
         @dataclass
-        class Named(IdlStruct, typename=name):
+        class Named(IdlStruct, typename=name):  # type: ignore[call-arg]  # cyclonedds: untyped
             data: idl.sequence[idl.uint8]
 
         Named.__idl__.fill_type_data()
