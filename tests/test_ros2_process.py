@@ -360,3 +360,19 @@ def test_sigterm_stops_zensim_ros2_within_two_seconds_and_its_tokens_go(tmp_path
                               if r.ok is not None], 10, "zensim ros2's ROS 2 tokens to go")
     finally:
         stack.close()
+
+
+def test_zensim_up_ros2_runs_the_face_beside_the_others(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    env = dict(os.environ, ZENSIM_UP_ROUTER_ENDPOINT=endpoint, ZENSIM_ROS2_DOMAIN_ID=str(DOMAIN),
+               ZENSIM_ROS2_TRANSPORTS="zenoh", ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
+    up = Service("up", ["--ros2", "--viz", "false"], env, tmp_path)
+    session = plain_client(endpoint, wait_for_router=True)
+    try:
+        wait_for(lambda: [r for r in session.liveliness().get(KEYS.alive("ros2"), timeout=2) if r.ok], 90,
+                 "alive/ros2 from `zensim up --ros2`")
+        tokens = [str(r.ok.key_expr) for r in session.liveliness().get(f"@ros2_lv/{DOMAIN}/**", timeout=5) if r.ok]
+        assert any(NODE_TOKEN.match(t) for t in tokens), tokens
+    finally:
+        session.close()
+        assert up.stop(timeout_s=15) == 0, up.log()[-3000:]
