@@ -229,6 +229,10 @@ class Role:
         serves: keys it declares queryables on and replies from.
         queries: keys it sends queries to (`get`, queriers).
         tokens: liveliness tokens it declares.
+        ros2: what it may do on rmw_zenoh's keys (`<domain>/**`, `@ros2_lv/<domain>/**`, outside zensim's
+            root; services/ros2): `write` (publish, subscribe, serve latched topics, declare ROS 2
+            tokens: a ROS 2 node that drives the robot), `read` (everything but publishing and serving),
+            or nothing.
     """
 
     name: str
@@ -239,6 +243,7 @@ class Role:
     serves: tuple[str, ...] = ()
     queries: tuple[str, ...] = ()
     tokens: tuple[str, ...] = ()
+    ros2: Literal["", "read", "write"] = ""
 
     def writes(self) -> tuple[str, ...]:
         return (*self.publishes, *self.serves, *self.tokens)
@@ -256,11 +261,11 @@ ROLES: Final[tuple[Role, ...]] = (
     Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (and its locomotion controller)", publishes=("cmd/motors", "state/unitree"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/unitree",)),
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
-    Role("ros2", "service", "the ROS 2 face (the bridge-facing side; its ROS 2 keys: docs/security.md)", publishes=("cmd/joints", "state/ros2"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros2",)),
+    Role("ros2", "service", "the ROS 2 face (the bridge-facing side; its ROS 2 keys: docs/security.md)", publishes=("cmd/joints", "state/ros2"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros2",), ros2="write"),
     Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/**",)),
     Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/**",), tokens=("alive/sim", "alive/replay")),
-    Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**", "world/*")),
-    Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**", "world/info")),
+    Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**", "world/*"), ros2="write"),
+    Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**", "world/info"), ros2="read"),
 )
 """Every role. The router denies everything a role does not list (docs/security.md)."""
 

@@ -376,3 +376,54 @@ def test_zensim_up_ros2_runs_the_face_beside_the_others(tmp_path):
     finally:
         session.close()
         assert up.stop(timeout_s=15) == 0, up.log()[-3000:]
+
+
+def test_secured_ros2_face_serves_an_operators_ros2_node_and_a_viewer_cannot_drive(tmp_path):
+    """Under `--secure-dir`, `zensim ros2` runs with its own role; a ROS 2 node with the operator's
+    credentials reads rmw_zenoh's keys and drives the robot, one with the viewer's reads but its commands
+    never reach the face."""
+    secrets = tmp_path / "secrets"
+    made = subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(secrets), "--ros-domain",
+                           str(DOMAIN)], capture_output=True, text=True, timeout=60)
+    assert made.returncode == 0, made.stderr
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    env = dict(os.environ, ZENSIM_SECURE_DIR=str(secrets), ZENSIM_ROBOT_ID="g1", PYTHONUNBUFFERED="1",
+               ZENSIM_ZENOH_CONNECT=endpoint)
+    services = [Service("router", ["--zenoh-listen", endpoint], dict(env, ZENSIM_ZENOH_CONNECT=""), tmp_path)]
+    sessions = []
+    try:
+        wait_for(lambda: "router up" in services[0].log() or not services[0].alive(), 20, "the secured router")
+        services += [Service("sim", ["--mode", "fixed"], env, tmp_path), Service("bridge", [], env, tmp_path),
+                     Service("ros2", ["--domain-id", str(DOMAIN), "--transports", "zenoh", "--status-rate-hz", "10"],
+                             env, tmp_path)]
+        wait_for(lambda: "ros2 face up" in services[-1].log() or not services[-1].alive(), 60, "zensim ros2")
+
+        def client(role: str) -> zenoh.Session:
+            conf = zenoh.Config.from_file(str(secrets / f"{role}.json5"))
+            conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+            sessions.append(zenoh.open(conf))
+            return sessions[-1]
+
+        operator, viewer = client("operator"), client("viewer")
+        for session in (operator, viewer):
+            got: list[bytes] = []
+            sub = session.declare_subscriber(f"{DOMAIN}/joint_states/**", lambda s, got=got: got.append(s.payload.to_bytes()))
+            wait_for(lambda got=got: len(got) > 10, 20, "joint states on rmw_zenoh's key through the secured router")
+            sub.undeclare()
+            assert deserialize_message(got[-1], RosJointState).name
+        status = Latest(operator, KEYS.ros2_status, Ros2Status)
+        before = status.wait(timeout_s=10, what="state/ros2")
+        for seq in range(1, 6):
+            zenoh_command(viewer, *TRAJECTORY, trajectory([ELBOW], [0.7]), seq=seq)
+        time.sleep(1.0)
+        assert status.wait(lambda s: s.seq > before.seq + 5, 10).commands_received == before.commands_received, \
+            "the router dropped the viewer's commands"
+        for seq in range(1, 11):
+            zenoh_command(operator, *TRAJECTORY, trajectory([ELBOW], [0.7]), seq=seq)
+            time.sleep(0.05)
+        elbow_reaches(operator, 0.7)
+    finally:
+        for session in sessions:
+            session.close()
+        for service in reversed(services):
+            service.stop()
