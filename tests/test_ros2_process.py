@@ -155,7 +155,7 @@ def test_rclpy_on_fast_dds_sees_the_robot_with_zensims_values(stack):
     joints = Latest(stack.session, KEYS.joints, JointState)
     odom = Latest(stack.session, KEYS.odom, Odometry)
     joints.keep_history = odom.keep_history = True
-    lines = rclpy_node("echo", "8", timeout_s=60)
+    lines = rclpy_node("echo", "10", timeout_s=90)
     by_topic: dict[str, list[dict]] = {}
     for line in lines:
         by_topic.setdefault(line.get("topic", ""), []).append(line)
@@ -163,7 +163,7 @@ def test_rclpy_on_fast_dds_sees_the_robot_with_zensims_values(stack):
         assert by_topic.get(topic), f"no {topic} reached rclpy over DDS; got {sorted(by_topic)}\n{stack.logs()}"
     assert by_topic["/robot_description"][0]["length"] == len(urdf)
     assert urdf.startswith(by_topic["/robot_description"][0]["head"])
-    assert len(by_topic["/joint_states"]) > 100, "about 100 Hz for several seconds"
+    assert len(by_topic["/joint_states"]) > 50, "the 100 Hz stream for seconds (loosely: discovery takes some)"
     zensim_q = {round(s.sim_time_s, 6): s.q for s in joints.history}
     matched = 0
     for js in by_topic["/joint_states"]:
@@ -181,6 +181,13 @@ def test_rclpy_on_fast_dds_sees_the_robot_with_zensims_values(stack):
         assert o["pos"] == pytest.approx(list(zensim_pos[round(o["t"], 6)]), abs=1e-12)
     clock = [c["t"] for c in by_topic["/clock"]]
     assert clock == sorted(clock) and clock[-1] > clock[0], "/clock counts sim time up"
+    # The DDS side listens on loopback only (as the Unitree adapter): every UDP socket of the process is
+    # bound to 127.0.0.1 or tied to lo (`0.0.0.0%lo` in ss).
+    sockets = [line.split()[3] for line in subprocess.run(["ss", "-H", "-uanp"], capture_output=True, text=True,
+                                                          timeout=10).stdout.splitlines()
+               if f"pid={stack.gateway.proc.pid}," in line]
+    assert sockets, "zensim ros2 has its DDS sockets"
+    assert all(a.startswith("127.0.0.1:") or "%lo:" in a for a in sockets), sockets
 
 
 def test_a_forward_command_from_rclpy_moves_the_elbow_and_cmd_vel_is_refused_and_counted(stack):

@@ -15,7 +15,8 @@ type when the topic is made; None there means "no type information".)
 On a loopback interface (`lo`, the default), discovery is by unicast to this machine's well-known ports
 (loopback has no multicast), the host's other addresses are listed too because Fast DDS announces its
 locators on them (Cyclone drops a participant whose addresses are on none of its interfaces), and every
-socket is then tied to `lo` (common/ddsbind.py): only processes of this machine are heard.
+socket, those bound to the other interfaces' addresses included, is then tied to `lo` (common/ddsbind.py):
+only processes of this machine are heard.
 """
 
 # No `from __future__ import annotations` here: Cyclone DDS reads the type class's annotations at run time.
@@ -137,7 +138,7 @@ class DdsEdge:
         self._participant = DomainParticipant(domain)
         if is_loopback(interface):
             try:
-                pin_to_device(udp_sockets() - before, interface)
+                pin_to_device(udp_sockets() - before, interface, every_address=True)
             except OSError as exc:
                 logger.error("cannot tie Cyclone DDS's sockets to %s (%s): DDS takes packets from every "
                              "interface", interface, exc)
