@@ -1,6 +1,9 @@
 """Latency through `zensim ros2` on both transports, beside zensim's own state/joints, and the face's CPU.
 
-    .venv/bin/python benchmarks/ros2_latency.py [--seconds 10] [--rates 100,500]
+    .venv-ros2/bin/python benchmarks/ros2_latency.py [--seconds 10] [--rates 100,500]
+
+It runs in .venv-ros2 (ROS 2's rclpy wheels and zensim, scripts/test makes it: the wheels' message packages
+would shadow Debian's ROS 1 ones in .venv); the services run as users run them, from .venv.
 
 For each sim state rate, starts a router, a sim (the G1 standing, rtf 1), the bridge and `zensim ros2`
 (both transports, `--state-rate-hz 1000` so it passes every state on) as real processes on loopback, in
@@ -31,12 +34,18 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState as RosJointState
 
-from harness import Processes, cpu_s, free_port, plain_client, wait_for
+from harness import REPO, Processes, cpu_s, free_port, plain_client, wait_for
 from zensim.schemas import JointState, Keys
 
 KEYS = Keys("g1")
 DOMAIN = 30 + os.getpid() % 150
 RMW_ZENOH_KEY = f"{DOMAIN}/joint_states/sensor_msgs::msg::dds_::JointState_/*"
+ZENSIM_PYTHON = os.environ.get("ZENSIM_PYTHON", str(REPO / ".venv" / "bin" / "python"))
+"""The project's venv, which runs the services (mujoco and the rest are there, not in .venv-ros2)."""
+
+
+def zensim(procs: Processes, command: str, *args: str, env: dict[str, str]):  # noqa: ANN201 - a harness Child
+    return procs.start(command, [ZENSIM_PYTHON, "-m", "zensim", command, *args], env)
 
 
 def percentiles(values_s: list[float]) -> str:
@@ -74,10 +83,10 @@ def run_rate(rate_hz: int, seconds: float, node) -> None:
     procs = Processes(env, prefix="zensim-bench-ros2-")
     client_env = {"ZENSIM_ZENOH_MODE": "client", "ZENSIM_ZENOH_CONNECT": endpoint}
     try:
-        procs.zensim("router", env={"ZENSIM_ZENOH_LISTEN": endpoint})
-        procs.zensim("sim", "--rtf", "1", "--state-rate-hz", str(rate_hz), env=client_env)
-        procs.zensim("bridge", env=client_env)
-        face = procs.zensim("ros2", "--domain-id", str(DOMAIN), "--state-rate-hz", "1000", env=client_env)
+        zensim(procs, "router", env={"ZENSIM_ZENOH_LISTEN": endpoint})
+        zensim(procs, "sim", "--rtf", "1", "--state-rate-hz", str(rate_hz), env=client_env)
+        zensim(procs, "bridge", env=client_env)
+        face = zensim(procs, "ros2", "--domain-id", str(DOMAIN), "--state-rate-hz", "1000", env=client_env)
         wait_for(lambda: "ros2 face up" in face.log(), 90, "zensim ros2", 0.2)
         zensim_at, dds_at, zenoh_at = Arrivals(), Arrivals(), Arrivals()
         decoder = msgspec.msgpack.Decoder(JointState)

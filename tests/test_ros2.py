@@ -1,17 +1,17 @@
-"""`zensim ros2`'s pure rules without a process: the CDR bytes against real rclpy (the Kilted wheels), the
-type hashes against the ones the wheels ship, rmw_zenoh's keys, tokens and attachments, the input checks.
+"""`zensim ros2`'s pure rules without a zensim process: the CDR bytes against real rclpy (the Kilted wheels,
+run by tests/ros2_node.py in .venv-ros2), the type hashes against the ones the wheels ship, rmw_zenoh's keys,
+tokens and attachments, the input checks.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import struct
-import sys
-from pathlib import Path
 
 import pytest
 import zenoh.ext
+
+import ros2_client
 
 from zensim.common.ros_rules import InputError, RobotJoints
 from zensim.ros2 import messages as msg
@@ -19,53 +19,37 @@ from zensim.ros2.cdr import CdrError, CdrReader
 from zensim.ros2.mapping import Ros2Names, check_twist, forward_command, trajectory_goal
 from zensim.ros2.rmw_zenoh import Node, Qos, attachment, data_key, mangle, read_attachment
 
-import rclpy.serialization as rclpy_serialization  # noqa: E402 - the ROS 2 wheels, in the `test` extra
-from nav_msgs.msg import Odometry  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
-from sensor_msgs.msg import Imu, JointState  # noqa: E402
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String  # noqa: E402
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
-from geometry_msgs.msg import Twist  # noqa: E402
-
-pytestmark = pytest.mark.filterwarnings("ignore:module 'sre_:DeprecationWarning")  # ROS's message packages
-
-serialize_message = rclpy_serialization.serialize_message
-deserialize_message = rclpy_serialization.deserialize_message
-
 ROBOT = RobotJoints(names=("hip", "knee", "elbow"), q_min=(-1.0, 0.0, -2.0), q_max=(1.0, 2.5, 2.0), run_id="r",
                     mesh_paths=())
 
 
-@pytest.mark.parametrize("ros_type", [t for t in msg.ALL_TYPES if t is not msg.TF_MESSAGE], ids=lambda t: t.name)
-def test_type_hashes_equal_the_ones_the_ros2_wheels_ship(ros_type):
-    package, _, short = ros_type.name.split("/")
-    description = Path(sys.prefix, "share", package, "msg", f"{short}.json")  # where the wheels put it
-    hashes = {h["type_name"]: h["hash_string"] for h in json.loads(description.read_text())["type_hashes"]}
-    assert hashes[ros_type.name] == ros_type.type_hash
-
-
-def test_tf_messages_hash_equals_rosbags_which_computes_the_wheels_hashes_too():
-    from rosbags.typesys import Stores, get_typestore
-
-    store = get_typestore(Stores.ROS2_KILTED)
-    assert store.hash_rihs01("tf2_msgs/msg/TFMessage") == msg.TF_MESSAGE.type_hash
-    assert store.hash_rihs01("sensor_msgs/msg/JointState") == msg.JOINT_STATE.type_hash  # rosbags agrees with the wheels
+def test_type_hashes_equal_the_ones_the_ros2_wheels_ship_and_rosbags_computes():
+    shipped = ros2_client.hashes()
+    for ros_type in msg.ALL_TYPES:  # TFMessage has no wheel: rosbags' hash, which agrees with the wheels'
+        assert shipped[ros_type.name] == ros_type.type_hash, ros_type.name
+    assert shipped["rosbags sensor_msgs/msg/JointState"] == msg.JOINT_STATE.type_hash
 
 
 def test_every_message_zensim_ros2_writes_decodes_with_rclpy_to_the_values_it_was_given():
-    js = deserialize_message(msg.joint_state(12.3456789, ["a", "bé"], [1.0, -2.5], [0.1, 0.2], [3.0, 4.0], "base"),
-                             JointState)
-    assert (js.header.stamp.sec, js.header.stamp.nanosec, js.header.frame_id) == (12, 345678900, "base")
-    assert list(js.name) == ["a", "bé"] and list(js.position) == [1.0, -2.5] and list(js.effort) == [3.0, 4.0]
-    odom = deserialize_message(msg.odometry(1.5, "world", "pelvis", msg.Pose((1, 2, 3), (0.1, 0.2, 0.3, 0.9),
-                                                                             (4, 5, 6), (7, 8, 9))), Odometry)
-    assert (odom.header.frame_id, odom.child_frame_id) == ("world", "pelvis")
-    o = odom.pose.pose.orientation
-    assert (o.x, o.y, o.z, o.w) == (0.1, 0.2, 0.3, 0.9) and odom.twist.twist.angular.z == 9
-    imu = deserialize_message(msg.imu(2.0, "imu_link", (0, 0, 0, 1), (1, 2, 3), (4, 5, 6)), Imu)
-    assert imu.orientation.w == 1 and imu.angular_velocity.y == 2 and imu.linear_acceleration.z == 6
-    assert deserialize_message(msg.clock(7.000000001), Clock).clock.nanosec == 1
-    assert deserialize_message(msg.string("<robot name='g1'/>"), String).data == "<robot name='g1'/>"
+    js, odom, imu, clock, text, tf = ros2_client.deserialize(
+        ("sensor_msgs/msg/JointState", msg.joint_state(12.3456789, ["a", "bé"], [1.0, -2.5], [0.1, 0.2], [3.0, 4.0],
+                                                       "base")),
+        ("nav_msgs/msg/Odometry", msg.odometry(1.5, "world", "pelvis",
+                                               msg.Pose((1, 2, 3), (0.1, 0.2, 0.3, 0.9), (4, 5, 6), (7, 8, 9)))),
+        ("sensor_msgs/msg/Imu", msg.imu(2.0, "imu_link", (0, 0, 0, 1), (1, 2, 3), (4, 5, 6))),
+        ("rosgraph_msgs/msg/Clock", msg.clock(7.000000001)),
+        ("std_msgs/msg/String", msg.string("<robot name='g1'/>")),
+        ("tf2_msgs/msg/TFMessage", msg.tf_message(3.5, [msg.Transform("world", "pelvis", (1, 2, 3), (0, 0, 0, 1))])))
+    assert js["header"] == {"stamp": {"sec": 12, "nanosec": 345678900}, "frame_id": "base"}
+    assert js["name"] == ["a", "bé"] and js["position"] == [1.0, -2.5] and js["effort"] == [3.0, 4.0]
+    assert (odom["header"]["frame_id"], odom["child_frame_id"]) == ("world", "pelvis")
+    assert odom["pose"]["pose"]["orientation"] == {"x": 0.1, "y": 0.2, "z": 0.3, "w": 0.9}
+    assert odom["twist"]["twist"]["angular"]["z"] == 9
+    assert imu["orientation"]["w"] == 1 and imu["angular_velocity"]["y"] == 2 and imu["linear_acceleration"]["z"] == 6
+    assert clock["clock"] == {"sec": 7, "nanosec": 1}
+    assert text["data"] == "<robot name='g1'/>"
+    assert tf["transforms"][0]["child_frame_id"] == "pelvis"
+    assert tf["transforms"][0]["transform"]["translation"]["z"] == 3
 
 
 def test_stamps_never_carry_a_second_of_nanoseconds():
@@ -75,17 +59,16 @@ def test_stamps_never_carry_a_second_of_nanoseconds():
 
 def test_commands_rclpy_encodes_decode_leniently():
     """rclpy's encoder leaves padding uninitialised and appends bytes: never compare bytes, read fields."""
-    array = Float64MultiArray(data=[0.5, -1.25, 2.0])
-    array.layout.dim = [MultiArrayDimension(label="joints", size=3, stride=3)]
-    assert msg.read_float64_multi_array(serialize_message(array)) == [0.5, -1.25, 2.0]
-    point = JointTrajectoryPoint(positions=[0.1, 0.2], velocities=[1.0, 1.0])
-    point.time_from_start.sec, point.time_from_start.nanosec = 2, 500_000_000
-    names, points = msg.read_joint_trajectory(serialize_message(JointTrajectory(joint_names=["knee", "elbow"],
-                                                                                points=[point, point])))
+    array, trajectory, twist = ros2_client.serialize(
+        {"type": "std_msgs/msg/Float64MultiArray", "data": [0.5, -1.25, 2.0], "dims": [["joints", 3]]},
+        {"type": "trajectory_msgs/msg/JointTrajectory", "joint_names": ["knee", "elbow"],
+         "points": [{"positions": [0.3, 0.4], "velocities": [1.0, 1.0], "sec": 1},
+                    {"positions": [0.1, 0.2], "velocities": [1.0, 1.0], "sec": 2, "nanosec": 500_000_000}]},
+        {"type": "geometry_msgs/msg/Twist", "linear": [0.4, 0.0, 0.0], "angular": [0.0, 0.0, -0.3]})
+    assert msg.read_float64_multi_array(array) == [0.5, -1.25, 2.0]
+    names, points = msg.read_joint_trajectory(trajectory)
     assert names == ["knee", "elbow"] and points[-1].positions == [0.1, 0.2] and points[-1].time_from_start_s == 2.5
-    twist = Twist()
-    twist.linear.x, twist.angular.z = 0.4, -0.3
-    assert msg.read_twist(serialize_message(twist)) == ((0.4, 0.0, 0.0), (0.0, 0.0, -0.3))
+    assert msg.read_twist(twist) == ((0.4, 0.0, 0.0), (0.0, 0.0, -0.3))
 
 
 @pytest.mark.parametrize("data", [
