@@ -47,7 +47,7 @@ def to_json(value):  # noqa: ANN001, ANN201 - a message or a field of one
     """A message as plain JSON values (field names as in the .msg files)."""
     if hasattr(value, "get_fields_and_field_types"):
         return {field: to_json(getattr(value, field)) for field in value.get_fields_and_field_types()}
-    if hasattr(value, "__slots__") and not isinstance(value, (str, bytes)) and hasattr(value, "__dataclass_fields__"):
+    if hasattr(value, "__dataclass_fields__"):  # rosbags' messages
         return {field: to_json(getattr(value, field)) for field in value.__dataclass_fields__ if field != "__msgtype__"}
     if isinstance(value, (list, tuple)) or type(value).__name__ in ("ndarray", "array"):
         return [to_json(v) for v in value]
