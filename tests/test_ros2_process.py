@@ -266,7 +266,9 @@ def zenoh_command(session, topic: str, ros_type: str, payload: bytes, attachment
                  "geometry_msgs::msg::dds_::Twist_": "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"}[ros_type]
     if attachment is None:
         attachment = struct.pack("<qqB", seq, time.time_ns(), 16) + bytes(range(16))
-    session.put(f"{DOMAIN}/{topic}/{ros_type}/{type_hash}", payload, attachment=attachment)
+    # Blocking, not dropped when the loaded machine backs the link up: every message sent must be counted.
+    session.put(f"{DOMAIN}/{topic}/{ros_type}/{type_hash}", payload, attachment=attachment,
+                congestion_control=zenoh.CongestionControl.BLOCK)
 
 
 FORWARD = ("forward_position_controller/commands", "std_msgs::msg::dds_::Float64MultiArray_")
@@ -316,8 +318,8 @@ def test_bad_ros2_input_is_refused_whole_counted_and_outputs_keep_their_rate(sta
         zenoh_command(stack.session, topic, ros_type, payload, attachment, seq=n + 1)
     # A sample with no attachment at all (rmw_zenoh drops those too).
     stack.session.put(f"{DOMAIN}/{FORWARD[0]}/{FORWARD[1]}/RIHS01_1025ddc6b9552d191f89ef1a8d2f60f3d373e28b283d8891ddcc974e8c55397f",
-                      whole)
-    after = wait_for(lambda: (s := newest_status(stack.session)).rejected >= before.rejected + len(bad) + 1 and s, 10,
+                      whole, congestion_control=zenoh.CongestionControl.BLOCK)
+    after = wait_for(lambda: (s := newest_status(stack.session)).rejected >= before.rejected + len(bad) + 1 and s, 20,
                      "every bad message to be counted")
     assert after.rejected == before.rejected + len(bad) + 1
     assert after.commands_forwarded == before.commands_forwarded, "nothing of a refused message is applied"
@@ -349,7 +351,7 @@ def test_sigterm_stops_zensim_ros2_within_two_seconds_and_its_tokens_go(tmp_path
         wait_for(lambda: [r for r in stack.session.liveliness().get(KEYS.alive("ros2"), timeout=2) if r.ok], 10,
                  "alive/ros2")
         t0 = time.monotonic()
-        assert stack.gateway.stop(timeout_s=5) == 0
+        assert stack.gateway.stop(timeout_s=5) == 0, stack.gateway.log()[-3000:]
         assert time.monotonic() - t0 < 2.5
         wait_for(lambda: not [r for r in stack.session.liveliness().get(f"@ros2_lv/{DOMAIN}/**", timeout=2)
                               if r.ok is not None], 10, "zensim ros2's ROS 2 tokens to go")
