@@ -260,15 +260,16 @@ def test_a_late_zenoh_subscriber_gets_the_latched_robot_description(stack):
 
 
 def zenoh_command(session, topic: str, ros_type: str, payload: bytes, attachment: bytes | None = None,
-                  seq: int = 1) -> None:
+                  seq: int = 1, block: bool = True) -> None:
     type_hash = {"std_msgs::msg::dds_::Float64MultiArray_": "RIHS01_1025ddc6b9552d191f89ef1a8d2f60f3d373e28b283d8891ddcc974e8c55397f",
                  "trajectory_msgs::msg::dds_::JointTrajectory_": "RIHS01_179b33eba59d676f6d967ac71fe35e7ca2f64b2f3928f4a018cec115e213796e",
                  "geometry_msgs::msg::dds_::Twist_": "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"}[ros_type]
     if attachment is None:
         attachment = struct.pack("<qqB", seq, time.time_ns(), 16) + bytes(range(16))
     # Blocking, not dropped when the loaded machine backs the link up: every message sent must be counted.
+    # A flood is sent as rmw_zenoh's keep-last publishers send (congestion control DROP).
     session.put(f"{DOMAIN}/{topic}/{ros_type}/{type_hash}", payload, attachment=attachment,
-                congestion_control=zenoh.CongestionControl.BLOCK)
+                congestion_control=zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP)
 
 
 FORWARD = ("forward_position_controller/commands", "std_msgs::msg::dds_::Float64MultiArray_")
@@ -330,14 +331,15 @@ def test_bad_ros2_input_is_refused_whole_counted_and_outputs_keep_their_rate(sta
     end = time.monotonic() + 3
     n = 0
     while time.monotonic() < end:
-        zenoh_command(stack.session, *FORWARD, b"\x00\x01\x00\x00" + b"\xff" * 64, seq=n)
+        zenoh_command(stack.session, *FORWARD, b"\x00\x01\x00\x00" + b"\xff" * 64, seq=n, block=False)
         n += 1
         if n % 10 == 0:
             time.sleep(0.005)  # about 2000 a second: ten times what the gateway passes on
     during = status_after(stack.session, flood_start.seq)
     assert during.joint_states_rate_hz > 50, f"joint states at {during.joint_states_rate_hz:.0f} Hz during a flood"
     assert stack.gateway.alive()
-    final = wait_for(lambda: (s := newest_status(stack.session)).rejected >= flood_start.rejected + n * 0.9 and s, 20,
+    # Sent with DROP, some may be lost on the way on a loaded machine: most are counted, none applied.
+    final = wait_for(lambda: (s := newest_status(stack.session)).rejected >= flood_start.rejected + n * 0.5 and s, 20,
                      f"the {n} flooded messages to be counted")
     assert final.commands_forwarded == before.commands_forwarded
     assert "Traceback" not in stack.gateway.log()
