@@ -29,6 +29,7 @@ from .messages import (
     ResumeRequest,
     RobotInfo,
     Ros1Status,
+    Ros2Status,
     RobotStates,
     WorldAdvanceReply,
     WorldAdvanceRequest,
@@ -47,6 +48,6 @@ __all__ = [
     "JointTargets", "KeyInfo", "Message", "Mode", "ModeRequest", "MotorCommand", "Odometry",
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
     "UnitreeStatus",
-    "AdvanceReply", "AppliedCommand", "Ros1Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
+    "AdvanceReply", "AppliedCommand", "Ros1Status", "Ros2Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
     "WorldInfo", "WorldRobot",
 ]

@@ -16,9 +16,9 @@ from .topics import TOPICS, Topic
 ROOT: Final = "zensim"
 DEFAULT_ROBOT_ID: Final = "g1"
 ROBOT_ID_PATTERN: Final = re.compile(r"[a-z0-9_-]+")
-SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree", "ros1")
+SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree", "ros1", "ros2")
 """Every service that declares `alive/{service}`; `zensim up` starts the first four in this order (the
-unitree adapter in place of the bridge with `--unitree`, the ROS 1 gateway last with `--ros1`)."""
+unitree adapter in place of the bridge with `--unitree`, the ROS 1 gateway with `--ros1`, the ROS 2 face last with `--ros2`)."""
 
 CTL_VERBS: Final = tuple(t.key.split("/", 1)[1] for t in TOPICS if t.key.startswith("ctl/"))
 """The control queryables' verbs (`ctl/{verb}`), from the registry."""
@@ -48,6 +48,7 @@ class Keys:
     bridge_targets: str
     unitree_status: str
     ros1_status: str
+    ros2_status: str
     motors: str
     joint_targets: str
     joint_target_any: str

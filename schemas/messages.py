@@ -782,6 +782,35 @@ class Ros1Status(Message, tag="ros1_status", frozen=True, kw_only=True):
     """Where the gateway serves the robot's meshes over http (robot_description points there); empty when it does not."""
 
 
+class Ros2Status(Message, tag="ros2_status", frozen=True, kw_only=True):
+    """Health of `zensim ros2`, the ROS 2 face (docs/ros.md), a few times a second."""
+
+    seq: int
+    """Counts up by one per published status."""
+    transports: tuple[str, ...] = ()
+    """The ROS 2 transports it serves: `zenoh` (rmw_zenoh's format on zensim's router), `dds` (Cyclone DDS)."""
+    domain_id: int = 0
+    """The ROS domain (ROS_DOMAIN_ID) its topics are in."""
+    joint_states_published: int = 0
+    """sensor_msgs/JointState messages published since start (once per state, on every transport)."""
+    joint_states_rate_hz: float = 0.0
+    """JointState rate over the last status period, Hz (the sim's state rate, at most `state_rate_hz`)."""
+    sim_time_s: float = 0.0
+    """Sim time of the newest JointState, s."""
+    commands_received: int = 0
+    """ROS 2 messages read on the command topics (forward commands, trajectories, /cmd_vel), good or bad."""
+    commands_forwarded: int = 0
+    """Of those, the ones passed on to the bridge (cmd/joints)."""
+    rejected: int = 0
+    """Of those, the ones refused whole: bytes that are not the message (truncated, garbage CDR), a sample
+    without rmw_zenoh's attachment, NaN or infinity, unknown joints, wrong lengths, outside the joint's
+    limits, oversize, /cmd_vel while no walking service runs."""
+    last_error: str | None = None
+    """Why the most recent ROS 2 message was refused, if one was."""
+    command_age_s: float | None = None
+    """Wall time since the newest forwarded command, s; null before the first one."""
+
+
 WIRE_TYPES: tuple[type[Message], ...] = (
     JointState,
     Odometry,
@@ -801,6 +830,7 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     AppliedCommand,
     AdvanceReply,
     Ros1Status,
+    Ros2Status,
     WorldAdvanceRequest,
     WorldAdvanceReply,
     WorldInfo,

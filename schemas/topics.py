@@ -39,6 +39,7 @@ from .messages import (
     ResumeRequest,
     RobotInfo,
     Ros1Status,
+    Ros2Status,
     SimStatus,
     StepRequest,
     UnitreeStatus,
@@ -149,6 +150,8 @@ UNITREE_STATUS: Final = Topic("state/unitree", "publication", "unitree (the Unit
                               "anyone", "`status_rate_hz`, default 2 Hz", UnitreeStatus, name="unitree_status")
 ROS1_STATUS: Final = Topic("state/ros1", "publication", "ros1 (the ROS 1 gateway, docs/ros.md)", "anyone",
                            "`status_rate_hz`, default 2 Hz", Ros1Status, name="ros1_status")
+ROS2_STATUS: Final = Topic("state/ros2", "publication", "ros2 (the ROS 2 face, docs/ros.md)", "anyone",
+                           "`status_rate_hz`, default 2 Hz", Ros2Status, name="ros2_status")
 # --- commands -------------------------------------------------------------------
 MOTORS: Final = Topic("cmd/motors", "publication", "bridge, unitree, or any client (a policy)", "sim",
                       "any; latest wins at each physics step", MotorCommand, name="motors")
@@ -192,7 +195,7 @@ ROBOT_INFO: Final = Topic("info/robot", "queryable", "sim", "anyone", "on demand
 URDF: Final[Topic[Message]] = Topic("info/urdf", "queryable", "sim", "anyone", "on demand", payload="URDF text (application/xml)", name="urdf")
 MESH: Final[Topic[Message]] = Topic("info/mesh/{path}", "queryable", "sim", "anyone", "on demand",
                     payload="mesh bytes (application/octet-stream)", name="mesh_any", wildcard="**")
-ALIVE: Final[Topic[Message]] = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree, ros1", "anyone",
+ALIVE: Final[Topic[Message]] = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree, ros1, ros2", "anyone",
                      "while running", payload="token", name="alive_any")
 ROUTER_ALIVE: Final[Topic[Message]] = Topic("alive", "liveliness", "router (one token whatever its `--robot-id`)",
                                             "viz (the router badge of every robot), anyone", "while running",
@@ -200,7 +203,7 @@ ROUTER_ALIVE: Final[Topic[Message]] = Topic("alive", "liveliness", "router (one 
                                             note="(the router serves every robot: its `alive/router` names only its own robot id)")
 
 TOPICS: Final[tuple[Topic, ...]] = (
-    JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS,
+    JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS, ROS2_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
     WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE, WORLD_INFO,
@@ -226,6 +229,10 @@ class Role:
         serves: keys it declares queryables on and replies from.
         queries: keys it sends queries to (`get`, queriers).
         tokens: liveliness tokens it declares.
+        ros2: what it may do on rmw_zenoh's keys (`<domain>/**`, `@ros2_lv/<domain>/**`, outside zensim's
+            root; services/ros2): `write` (publish, subscribe, serve latched topics, declare ROS 2
+            tokens: a ROS 2 node that drives the robot), `read` (everything but publishing and serving),
+            or nothing.
     """
 
     name: str
@@ -236,6 +243,7 @@ class Role:
     serves: tuple[str, ...] = ()
     queries: tuple[str, ...] = ()
     tokens: tuple[str, ...] = ()
+    ros2: Literal["", "read", "write"] = ""
 
     def writes(self) -> tuple[str, ...]:
         return (*self.publishes, *self.serves, *self.tokens)
@@ -253,10 +261,11 @@ ROLES: Final[tuple[Role, ...]] = (
     Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (and its locomotion controller)", publishes=("cmd/motors", "state/unitree"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/unitree",)),
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
+    Role("ros2", "service", "the ROS 2 face (the bridge-facing side; its ROS 2 keys: docs/security.md)", publishes=("cmd/joints", "state/ros2"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros2",), ros2="write"),
     Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/**",)),
     Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/**",), tokens=("alive/sim", "alive/replay")),
-    Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**", "world/*")),
-    Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**", "world/info")),
+    Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**", "world/*"), ros2="write"),
+    Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**", "world/info"), ros2="read"),
 )
 """Every role. The router denies everything a role does not list (docs/security.md)."""
 

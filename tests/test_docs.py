@@ -10,6 +10,7 @@ from zensim.router import RouterSettings
 from zensim.bridge.settings import BridgeSettings
 from zensim.sim.settings import SimSettings
 from zensim.ros1.settings import Ros1Settings
+from zensim.ros2.settings import Ros2Settings
 from zensim.unitree.settings import UnitreeSettings
 from zensim.viz.settings import VizSettings
 
@@ -17,7 +18,8 @@ from zensim.viz.settings import VizSettings
 @pytest.mark.parametrize(
     "readme, settings", [("services/sim/README.md", SimSettings), ("services/bridge/README.md", BridgeSettings),
      ("services/viz/README.md", VizSettings), ("docs/deployment.md", RouterSettings),
-     ("services/unitree/README.md", UnitreeSettings), ("services/ros1/README.md", Ros1Settings)]
+     ("services/unitree/README.md", UnitreeSettings), ("services/ros1/README.md", Ros1Settings),
+     ("services/ros2/README.md", Ros2Settings)]
 )
 def test_service_readme_lists_every_setting(readme: str, settings: type) -> None:
     """Paste `settings_table(...)` output into the README when this fails."""

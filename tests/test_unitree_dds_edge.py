@@ -15,7 +15,7 @@ from cyclonedds._clayer import ddspy_write
 from support import Latest, ctl, wait_for
 from unitree_sdk import KD, KP, SdkClient, low_cmd_crc, new_low_cmd, unused_domain_id
 from zensim.schemas import JointState, Keys, SimStatus, UnitreeStatus
-from zensim.unitree.ddsbind import is_loopback
+from zensim.common.ddsbind import is_loopback
 
 ELBOW = 18  # left_elbow_joint in the G1's motor order
 

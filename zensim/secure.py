@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from zensim.common.secure import DEFAULT_HOSTS, SecureConfigError, init
+from zensim.common.secure import DEFAULT_HOSTS, DEFAULT_ROS_DOMAINS, SecureConfigError, init
 from zensim.schemas.topics import ROLE_NAMES
 
 
@@ -32,6 +32,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     make.add_argument("--robots", action="append", default=[], metavar="ROLE=ID[,ID...]",
                       help="the robot ids a role's credential may act on (repeatable, e.g. operator=a; "
                            "default: every robot)")
+    make.add_argument("--ros-domain", action="append", type=int, default=[], metavar="N",
+                      help="a ROS domain whose rmw_zenoh keys `zensim ros2` and ROS 2 nodes may use (repeatable; "
+                           "default 0; docs/ros.md)")
     args = parser.parse_args(list(argv) if argv is not None else None)
     listen = tuple(args.listen) or ("tls/127.0.0.1:7447",)
     bad = [e for e in listen if not e.startswith("tls/")]
@@ -46,7 +49,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"zensim secure: --robots takes ROLE=ID[,ID...], not {scope!r}", file=sys.stderr)
             return 2
     try:
-        init(args.dir, tuple(args.host), listen, args.days, robots)
+        bad_domains = [d for d in args.ros_domain if not 0 <= d <= 232]
+        if bad_domains:
+            raise SecureConfigError(f"a ROS domain is 0 to 232, not {bad_domains[0]}")
+        init(args.dir, tuple(args.host), listen, args.days, robots, tuple(args.ros_domain) or DEFAULT_ROS_DOMAINS)
     except SecureConfigError as exc:
         print(f"zensim secure: {exc}", file=sys.stderr)
         return 2

@@ -2,6 +2,7 @@
 
 `zensim up --unitree` runs the Unitree DDS adapter in place of the bridge (docs/unitree.md).
 `zensim up --ros1` adds the ROS 1 gateway, and a `roscore` when none answers at ROS_MASTER_URI (docs/ros.md).
+`zensim up --ros2` adds the ROS 2 face (`zensim ros2`: rmw_zenoh's keys on the router, and DDS; docs/ros.md).
 
 The same four services as compose.yaml, wired the same way: a router listens
 on one endpoint and the others join it as clients with multicast scouting off.
@@ -48,6 +49,8 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """Run the Unitree DDS adapter (`zensim unitree`) in place of the bridge, with 500 Hz sim states: an SDK controller owns the motors."""
     ros1: bool = False
     """Also run the ROS 1 gateway (`zensim ros1`), and `roscore` when no master answers at ROS_MASTER_URI."""
+    ros2: bool = False
+    """Also run the ROS 2 face (`zensim ros2`): ROS 2 nodes on rmw_zenoh (this router) or DDS see the robot."""
     log_level: str = "INFO"
     """Python log level of `zensim up` itself (the services follow ZENSIM_LOG_LEVEL)."""
     secure_dir: str | None = None
@@ -79,6 +82,10 @@ def settings_of(name: str) -> type[msgspec.Struct]:
         from zensim.ros1.settings import Ros1Settings
 
         return Ros1Settings
+    if name == "ros2":
+        from zensim.ros2.settings import Ros2Settings
+
+        return Ros2Settings
     from zensim.viz.settings import VizSettings
 
     return VizSettings
@@ -107,7 +114,7 @@ def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir
     return env
 
 
-BARE_FLAGS = ("--unitree", "--ros1")
+BARE_FLAGS = ("--unitree", "--ros1", "--ros2")
 
 
 def _bare_unitree_flag(argv: Sequence[str] | None) -> list[str]:
@@ -182,7 +189,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if settings.secure_dir and not endpoint.startswith("tls/"):
         logger.error("with --secure-dir the router endpoint is tls/, not %s", endpoint)
         return 2
-    names = [name for name in SERVICES if name not in ("unitree", "ros1") and (settings.viz or name != "viz")]
+    names = [name for name in SERVICES if name not in ("unitree", "ros1", "ros2") and (settings.viz or name != "viz")]
     roscore = None
     if settings.ros1:
         names.append("ros1")
@@ -191,6 +198,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         except OSError as exc:
             logger.error("--ros1: %s (install ROS 1: docs/ros.md)", exc)
             return 2
+    if settings.ros2:
+        names.append("ros2")
     if settings.unitree:
         # The bridge would command every motor at 100 Hz too; the SDK controller is the one commander.
         names[names.index("bridge")] = "unitree"

@@ -65,6 +65,31 @@ ROUTER_WATCH_RULES: Final = [
 ]
 
 
+ROS2_DECLARATIONS: Final = ("egress", ["declare_subscriber", "declare_queryable", "declare_liveliness_subscriber"])
+"""Declarations the router forwards on the ROS keys: a publisher learns who listens, a querier who answers."""
+ROS2_WRITE_RULES: Final = [
+    ("ingress", ["put", "declare_subscriber", "declare_queryable", "reply", "query", "liveliness_token",
+                 "declare_liveliness_subscriber", "liveliness_query"]),
+    ("egress", ["put", "query", "reply", "liveliness_token", "liveliness_query"]),
+    ROS2_DECLARATIONS,
+]
+ROS2_READ_RULES: Final = [
+    # A reading ROS 2 node still announces itself and its subscriptions (tokens) and asks latched topics'
+    # caches (queries); it never puts data nor answers a query.
+    ("ingress", ["declare_subscriber", "query", "liveliness_token", "declare_liveliness_subscriber",
+                 "liveliness_query"]),
+    ("egress", ["put", "reply", "liveliness_token", "liveliness_query"]),
+    ROS2_DECLARATIONS,
+]
+DEFAULT_ROS_DOMAINS: Final = (0,)
+
+
+def ros2_keys(domain: int) -> list[str]:
+    """rmw_zenoh's keys of one ROS domain: data, the advanced publishers' caches and tokens (`@adv` is a
+    verbatim chunk that `**` does not cross), and the graph's liveliness tokens."""
+    return [f"{domain}/**", f"{domain}/**/@adv/**", f"@ros2_lv/{domain}/**"]
+
+
 def role_rules(role: Role) -> list[tuple[str, list[str], list[str]]]:
     """(flow, messages, keys under `zensim/{robot}/`) the router allows `role`; everything else is denied."""
     rules = [(flow, messages, list(getattr(role, use))) for use, pairs in RULES_BY_USE.items()
@@ -72,11 +97,13 @@ def role_rules(role: Role) -> list[tuple[str, list[str], list[str]]]:
     return rules + EVERY_ROLE_RULES
 
 
-def access_control(robots: Mapping[str, Sequence[str]] | None = None) -> dict:
+def access_control(robots: Mapping[str, Sequence[str]] | None = None,
+                   ros_domains: Sequence[int] = DEFAULT_ROS_DOMAINS) -> dict:
     """Zenoh's `access_control` block: one subject per role (its user name and certificate name).
 
     Args:
         robots: role -> the robot ids its credential may act on; a role not named acts on every robot.
+        ros_domains: the ROS domains whose rmw_zenoh keys roles with `ros2` access may use.
     """
     robots = robots or {}
     rules, subjects, policies = [], [], []
@@ -91,6 +118,11 @@ def access_control(robots: Mapping[str, Sequence[str]] | None = None) -> dict:
             ids.append(f"{role.name}-router-{n}")
             rules.append({"id": ids[-1], "flows": [flow], "permission": "allow", "messages": messages,
                           "key_exprs": [ROUTER_ALIVE.full_key()]})
+        if role.ros2:
+            for n, (flow, messages) in enumerate(ROS2_WRITE_RULES if role.ros2 == "write" else ROS2_READ_RULES):
+                ids.append(f"{role.name}-ros2-{n}")
+                rules.append({"id": ids[-1], "flows": [flow], "permission": "allow", "messages": messages,
+                              "key_exprs": [key for domain in ros_domains for key in ros2_keys(domain)]})
         subjects.append({"id": role.name, "usernames": [role.name], "cert_common_names": [cert_name(role.name)]})
         policies.append({"id": role.name, "rules": ids, "subjects": [role.name]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
@@ -168,7 +200,8 @@ def _json5(header: str, config: dict) -> str:
 
 
 def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("tls/127.0.0.1:7447",),
-         days: int = CERT_DAYS, robots: Mapping[str, Sequence[str]] | None = None) -> list[Path]:
+         days: int = CERT_DAYS, robots: Mapping[str, Sequence[str]] | None = None,
+         ros_domains: Sequence[int] = DEFAULT_ROS_DOMAINS) -> list[Path]:
     """Make a CA, the router's certificate, one certificate and password per role, and the configs.
 
     The CA key is not kept: run `init` again (into a fresh folder) to change hosts or roles.
@@ -179,6 +212,7 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("
         listen: the router's default tls/ listen endpoints (`--zenoh-listen` overrides them).
         days: certificate lifetime.
         robots: role -> the robot ids its credential may act on (default: every robot).
+        ros_domains: the ROS domains whose rmw_zenoh keys `zensim ros2` and ROS 2 nodes may use.
 
     Returns:
         The files written.
@@ -223,7 +257,7 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("
             # zensim sets the absolute path at start; zenohd needs it edited to where the file is.
             "auth": {"usrpwd": {"dictionary_file": USERS_FILE}},
         },
-        "access_control": access_control(robots),
+        "access_control": access_control(robots, ros_domains),
     }
     put("router.json5", _json5(f"zensim router, secured (hosts: {', '.join(all_hosts)}). Keep private.", router))
     for role in ROLE_NAMES:

@@ -9,8 +9,8 @@ The domain is configured as the SDK's `ChannelFactoryInitialize(domain, interfac
 an XML config naming the network interface (Cyclone DDS turns multicast off on `lo` and finds
 local participants by unicast). QoS is Cyclone's default on both sides, as in the SDK, except
 rt/lowcmd's reader history (LOWCMD_HISTORY), which only the reader sees. On a loopback interface
-the participant's sockets are tied to it (ddsbind.py: Cyclone binds them to 0.0.0.0), and Cyclone's
-own log lines go through a rate limiter (ddslog.py).
+the participant's sockets are tied to it (common/ddsbind.py: Cyclone binds them to 0.0.0.0), and Cyclone's
+own log lines go through a rate limiter (common/ddslog.py).
 
 LowCmd_/LowState_ travel as raw serialized bytes through the binding's C layer (`_clayer`, the
 calls DataReader.take and DataWriter.write make after their own, slow, (de)serialization; see
@@ -31,8 +31,8 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
-from .ddsbind import is_loopback, pin_to_device, udp_sockets
-from .ddslog import route_cyclone_log
+from zensim.common.ddsbind import is_loopback, pin_to_device, udp_sockets
+from zensim.common.ddslog import route_cyclone_log
 from .idl import LowCmd_, LowState_, Request_, Response_
 
 LOWCMD_TOPIC = "rt/lowcmd"

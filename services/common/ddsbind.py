@@ -1,4 +1,4 @@
-"""Keep Cyclone DDS's sockets on a loopback interface when the adapter is told to use one.
+"""Keep Cyclone DDS's sockets on a loopback interface when a DDS edge (the Unitree adapter, zensim ros2) is told to use one.
 
 Cyclone DDS 0.10 binds its receive sockets (discovery and data, unicast and multicast) to 0.0.0.0
 whatever interface it is configured for, and has no setting to change that (cyclonedds issue 1923:
@@ -68,8 +68,12 @@ def udp_sockets() -> set[str]:
     return found
 
 
-def pin_to_device(inodes: set[str], interface: str) -> int:
+def pin_to_device(inodes: set[str], interface: str, every_address: bool = False) -> int:
     """Tie every UDP socket in `inodes` that is bound to the wildcard address to `interface`.
+
+    With `every_address`, sockets bound to one of this machine's other addresses are tied too (a DDS
+    side that lists the host's interfaces beside `lo` only to accept local peers' locators on them:
+    zensim ros2); the traffic of local processes to those addresses travels over loopback anyway.
 
     Returns:
         How many sockets were pinned.
@@ -85,7 +89,8 @@ def pin_to_device(inodes: set[str], interface: str) -> int:
         if sock is None:
             continue
         with sock:
-            if sock.getsockname()[0] in ("0.0.0.0", "::"):
+            address = sock.getsockname()[0]
+            if address in ("0.0.0.0", "::") or (every_address and not address.startswith(("127.", "::1"))):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_BINDTODEVICE, interface.encode())
                 pinned += 1
     return pinned

@@ -22,7 +22,7 @@ from cyclonedds.internal import DDS
 
 from zensim.common.logs import RateLimitedLog
 
-logger = logging.getLogger("zensim.unitree.cyclonedds")
+logger = logging.getLogger("zensim.cyclonedds")
 
 LOG_PERIOD_S = 1.0
 """Shortest time between two lines from the same place in Cyclone's code, s."""

@@ -1,0 +1,369 @@
+"""`zensim ros2`'s wiring: zensim's keys on one side, ROS 2 topics on rmw_zenoh's keys and on DDS on the other.
+
+Reads:
+    {robot}/state/joints, state/odom, state/imu   -> JointState + Clock, Odometry + TF, Imu on ROS 2
+    {robot}/state/sim          SimStatus: a new `run_id` is a restarted sim (perhaps another robot):
+                               learn it again and publish robot_description anew
+    {robot}/info/robot, info/urdf   the robot and its URDF
+    ROS 2: the forward command, trajectory and /cmd_vel topics, on every transport
+Writes:
+    {robot}/cmd/joints         JointTargets, one per accepted command (the bridge clamps and slew-limits it)
+    {robot}/state/ros2         Ros2Status at status_rate_hz
+    {robot}/alive/ros2         liveliness token, once the robot is known
+    ROS 2: robot_description (latched), joint_states, tf, odom, imu, clock
+
+Each ROS 2 message is built once (messages.py: CDR bytes) and handed to every transport. Outputs go
+out on zenoh's callback threads as each state arrives; commands come in on zenoh's callback threads
+(rmw_zenoh) and on the DDS reader thread, are checked whole (mapping.py, common/ros_rules.py) and go to
+zenoh at once. A flood of commands is shed beyond COMMAND_RATE_HZ before it is decoded, and counted.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, Final
+
+import zenoh
+
+from zensim.common.logs import RateLimitedLog
+from zensim.common.robot_info import fetch_robot
+from zensim.common.ros_rules import InputError, P3dOdometry, RateGate, RobotJoints, xyzw
+from zensim.common.session import StartupError
+from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
+from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros2Status, SimStatus, topics
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
+
+from . import messages as msg
+from .cdr import CdrError
+from .mapping import NO_WALKING, Ros2Names, check_twist, forward_command, namespace_of, trajectory_goal
+from .rmw_zenoh import Qos
+from .settings import Ros2Settings
+from .transport import Publisher, Transport
+
+logger = logging.getLogger("zensim.ros2")
+
+INPUT_CAP_BYTES: Final = 64 * 1024
+"""Largest ROS 2 command accepted, bytes (a G1 trajectory of a few dozen points fits)."""
+COMMAND_RATE_HZ: Final = 200.0
+"""Commands per second the gateway decodes and passes on, over all command topics; more are refused as a
+flood (a controller at 100 Hz fits twice). The bridge keeps only the newest command anyway."""
+COMMAND_BURST: Final = 50
+"""Commands that may come at once before the rate applies."""
+STATE_QOS: Final = Qos(depth=10)
+LATCHED_QOS: Final = Qos(transient_local=True, depth=1)
+
+
+def names_of(settings: Ros2Settings) -> Ros2Names:
+    s = settings
+    return Ros2Names.of(s.namespace, robot_description=s.robot_description_topic, joint_states=s.joint_states_topic,
+                        tf=s.tf_topic, odom=s.odom_topic, imu=s.imu_topic, clock=s.clock_topic,
+                        forward_command=s.forward_command_topic, trajectory=s.trajectory_topic,
+                        cmd_vel=s.cmd_vel_topic)
+
+
+class TokenBucket:
+    """At most `rate_hz` takes a second on average, `burst` at once. Thread-safe."""
+
+    def __init__(self, rate_hz: float, burst: int) -> None:
+        self._rate = rate_hz
+        self._burst = float(burst)
+        self._tokens = float(burst)
+        self._last = time.monotonic()
+        self._lock = threading.Lock()
+
+    def take(self) -> bool:
+        with self._lock:
+            now = time.monotonic()
+            self._tokens = min(self._burst, self._tokens + (now - self._last) * self._rate)
+            self._last = now
+            if self._tokens >= 1.0:
+                self._tokens -= 1.0
+                return True
+            return False
+
+
+class Counters:
+    """What the status reports; updated under the gateway's lock."""
+
+    def __init__(self) -> None:
+        self.joint_states_published = 0
+        self.sim_time_s = 0.0
+        self.commands_received = 0
+        self.commands_forwarded = 0
+        self.last_command: float | None = None
+
+
+class Outputs:
+    """One topic's publishers, one per transport."""
+
+    def __init__(self, transports: list[Transport], topic: str, ros_type: msg.RosType, qos: Qos) -> None:
+        self._publishers: list[Publisher] = [t.publisher(topic, ros_type, qos) for t in transports]
+
+    def put(self, payload: bytes) -> None:
+        for publisher in self._publishers:
+            publisher.put(payload)
+
+
+class Gateway:
+    """The running face (see the module docstring)."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, settings: Ros2Settings, names: Ros2Names,
+                 transports: list[Transport]) -> None:
+        self._session = session
+        self._keys = keys
+        self._settings = settings
+        self.names = names
+        self.transports = transports
+        self._lock = threading.Lock()
+        self.counters = Counters()
+        self.refusals = Refusals(logger, "ROS 2 message")
+        self._state_log = RateLimitedLog(logger, 5.0)
+        self._flood = TokenBucket(COMMAND_RATE_HZ, COMMAND_BURST)
+        self.sim_restarted = threading.Event()
+        self._robot: RobotJoints | None = None
+        self._cap_bytes = 0
+        self._codecs: dict[type, Codec[Any]] = {JointState: Codec(JointState), Odometry: Codec(Odometry),
+                                                Imu: Codec(Imu), SimStatus: Codec(SimStatus)}
+        self._gates = {name: RateGate(settings.state_rate_hz) for name in ("joints", "odom", "imu")}
+        # ROS 2 side: outputs, then inputs.
+        self._description = Outputs(transports, names.robot_description, msg.STRING, LATCHED_QOS)
+        self._joint_states = Outputs(transports, names.joint_states, msg.JOINT_STATE, STATE_QOS)
+        self._clock = Outputs(transports, names.clock, msg.CLOCK, STATE_QOS)
+        self._tf = Outputs(transports, names.tf, msg.TF_MESSAGE, Qos(depth=100))  # tf2's listener depth
+        self._odom = Outputs(transports, names.odom, msg.ODOMETRY, STATE_QOS)
+        self._imu = Outputs(transports, names.imu, msg.IMU, STATE_QOS)
+        for transport in transports:
+            for topic, ros_type, handle in (
+                    (names.forward_command, msg.FLOAT64_MULTI_ARRAY, self._on_forward_command),
+                    (names.trajectory, msg.JOINT_TRAJECTORY, self._on_trajectory),
+                    (names.cmd_vel, msg.TWIST, self._on_cmd_vel)):
+                transport.subscribe(topic, ros_type, self._command(topic, handle), self._bad(topic))
+        # Zenoh side.
+        self._targets = TypedPublisher.of(session, keys, topics.JOINT_TARGETS)
+        self._status = TypedPublisher.of(session, keys, topics.ROS2_STATUS)
+        self._subscribers: list[zenoh.Subscriber] = []
+
+    def start(self, robot: RobotJoints, urdf: str) -> None:
+        """Take the robot, publish robot_description, then start the flow of states."""
+        self.adopt(robot, urdf)
+        keys = self._keys
+        self._subscribers = [
+            self._session.declare_subscriber(keys.joints, self._on_joints),
+            self._session.declare_subscriber(keys.odom, self._on_odom),
+            self._session.declare_subscriber(keys.imu, self._on_imu),
+            self._session.declare_subscriber(keys.sim_status, self._on_sim_status),
+        ]
+
+    def adopt(self, robot: RobotJoints, urdf: str) -> None:
+        """Take `robot` (at start and after a sim restart) and publish its URDF on robot_description."""
+        with self._lock:
+            self._robot = robot
+            self._cap_bytes = vector_cap_bytes(robot.names)
+            self.sim_restarted.clear()
+        self._description.put(msg.string(urdf))
+        logger.info("%s published: %d characters", self.names.robot_description, len(urdf))
+
+    # --- zensim -> ROS 2 (zenoh threads) ----------------------------------------------------------
+
+    def _decode(self, sample: zenoh.Sample, message_type: type) -> Any:
+        try:
+            return decode_input(sample, self._codecs[message_type], self._cap_bytes)
+        except DecodeError as exc:
+            self._state_log.warning("ignoring a bad %s on %s: %s", message_type.__name__, sample.key_expr, exc)
+            return None
+
+    def _on_joints(self, sample: zenoh.Sample) -> None:
+        state = self._decode(sample, JointState)
+        robot = self._robot
+        if state is None or robot is None or not self._gates["joints"].due(state.sim_time_s):
+            return
+        if len(state.q) != len(robot.names):
+            self._state_log.warning("state/joints has %d positions for %d joints: not published",
+                                    len(state.q), len(robot.names))
+            return
+        self._clock.put(msg.clock(state.sim_time_s))
+        self._joint_states.put(msg.joint_state(state.sim_time_s, robot.names, state.q, state.dq, state.tau))
+        with self._lock:
+            self.counters.joint_states_published += 1
+            self.counters.sim_time_s = state.sim_time_s
+
+    def _on_odom(self, sample: zenoh.Sample) -> None:
+        odom = self._decode(sample, Odometry)
+        if odom is None or not self._gates["odom"].due(odom.sim_time_s):
+            return
+        p3d = P3dOdometry.of(odom)
+        world, base = self._settings.world_frame, self._settings.base_frame
+        self._odom.put(msg.odometry(odom.sim_time_s, world, base,
+                                    msg.Pose(p3d.position, p3d.orientation_xyzw, p3d.linear, p3d.angular)))
+        self._tf.put(msg.tf_message(odom.sim_time_s, [msg.Transform(world, base, p3d.position, p3d.orientation_xyzw)]))
+
+    def _on_imu(self, sample: zenoh.Sample) -> None:
+        imu = self._decode(sample, Imu)
+        if imu is None or not self._gates["imu"].due(imu.sim_time_s):
+            return
+        self._imu.put(msg.imu(imu.sim_time_s, self._settings.imu_frame, xyzw(imu.quat_wxyz), imu.gyro, imu.accel))
+
+    def _on_sim_status(self, sample: zenoh.Sample) -> None:
+        status = self._decode(sample, SimStatus)
+        robot = self._robot
+        if status is None or robot is None:
+            return
+        if status.run_id and status.run_id != robot.run_id and not self.sim_restarted.is_set():
+            logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
+            self.sim_restarted.set()
+
+    # --- ROS 2 -> zensim (zenoh threads, the DDS thread) -------------------------------------------
+
+    def _bad(self, topic: str) -> Callable[[str], None]:
+        def refuse(reason: str) -> None:
+            with self._lock:
+                self.counters.commands_received += 1
+            self.refusals.refuse(topic, reason)
+        return refuse
+
+    def _command(self, topic: str, handle: Callable[[RobotJoints, bytes], None]) -> Callable[[bytes], None]:
+        def on_message(data: bytes) -> None:
+            with self._lock:
+                self.counters.commands_received += 1
+                robot = self._robot
+            if not self._flood.take():
+                self.refusals.refuse(topic, f"more than {COMMAND_RATE_HZ:g} commands a second: shed")
+                return
+            try:
+                if robot is None:
+                    raise InputError("the robot is not known yet")
+                handle(robot, data)
+            except (InputError, CdrError) as exc:
+                self.refusals.refuse(topic, str(exc))
+        return on_message
+
+    def _forward(self, targets: Any) -> None:
+        self._targets.put(targets)
+        with self._lock:
+            self.counters.commands_forwarded += 1
+            self.counters.last_command = time.monotonic()
+
+    def _on_forward_command(self, robot: RobotJoints, data: bytes) -> None:
+        self._forward(forward_command(robot, msg.read_float64_multi_array(data)))
+
+    def _on_trajectory(self, robot: RobotJoints, data: bytes) -> None:
+        names, points = msg.read_joint_trajectory(data)
+        self._forward(trajectory_goal(robot, names, points))
+
+    def _on_cmd_vel(self, robot: RobotJoints, data: bytes) -> None:
+        check_twist(*msg.read_twist(data))
+        raise InputError(NO_WALKING)
+
+    # --- status ------------------------------------------------------------------------------------
+
+    def publish_status(self, seq: int, rate_hz: float) -> None:
+        with self._lock:
+            c = self.counters
+            status = Ros2Status(
+                seq=seq, transports=tuple(t.name for t in self.transports), domain_id=self._settings.domain_id,
+                joint_states_published=c.joint_states_published, joint_states_rate_hz=rate_hz,
+                sim_time_s=c.sim_time_s, commands_received=c.commands_received,
+                commands_forwarded=c.commands_forwarded, rejected=self.refusals.count,
+                last_error=self.refusals.last_error,
+                command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
+            )
+        self._status.put(status)
+
+    def close(self) -> None:
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
+        for transport in self.transports:
+            transport.close()
+        self._targets.undeclare()
+        self._status.undeclare()
+
+
+def read_urdf(session: zenoh.Session, keys: Keys, timeout_s: float) -> str:
+    """The sim's URDF (info/urdf), size-capped.
+
+    Raises:
+        LookupError: no reply within `timeout_s`, an error reply, or one over the cap.
+    """
+    for reply in session.get(keys.urdf, timeout=timeout_s):
+        if reply.ok is None:
+            raise LookupError(f"{keys.urdf}: {error_text(reply.err)}")
+        try:
+            return read_payload(reply.ok, DESCRIPTION_CAP_BYTES)[0].decode("utf-8", errors="replace")
+        except DecodeError as exc:
+            raise LookupError(f"{keys.urdf}: {exc}") from None
+    raise LookupError(f"no reply on {keys.urdf} within {timeout_s} s")
+
+
+def open_transports(session: zenoh.Session, settings: Ros2Settings, node_name: str) -> list[Transport]:
+    """The transports the settings name (the DDS one only when asked for: it loads Cyclone DDS)."""
+    chosen = settings.transports.split(",")
+    transports: list[Transport] = []
+    if "zenoh" in chosen:
+        from .zenoh_edge import ZenohEdge
+
+        transports.append(ZenohEdge(session, settings.domain_id, namespace_of(settings.namespace), node_name,
+                                    INPUT_CAP_BYTES, settings.humble))
+    if "dds" in chosen:
+        try:
+            from .dds_edge import DdsEdge
+        except ImportError as exc:
+            raise StartupError(f"the DDS transport needs the Cyclone DDS binding ({exc}): install the `unitree` "
+                               "extra (docs/unitree.md) or run with --transports zenoh") from None
+        transports.append(DdsEdge(settings.domain_id, settings.dds_interface, INPUT_CAP_BYTES))
+    return transports
+
+
+def run(session: zenoh.Session, settings: Ros2Settings, stop: threading.Event) -> int:
+    """Learn the robot, join the ROS 2 graph on each transport, map until `stop` is set.
+
+    Returns:
+        The process exit code.
+    """
+    keys = Keys(settings.robot_id)
+    try:
+        names = names_of(settings)
+    except ValueError as exc:
+        raise StartupError(str(exc)) from None
+    logger.info("asking the sim on %s", keys.robot_info)
+    robot = fetch_robot(session, keys, settings.info_timeout_s, stop, RobotJoints.from_info, logger)
+    if robot is None:
+        return 0
+    try:
+        urdf = read_urdf(session, keys, settings.info_timeout_s)
+    except LookupError as exc:
+        raise StartupError(f"cannot read the robot's URDF: {exc}") from None
+    node_name = settings.node_name or f"zensim_{settings.robot_id.replace('-', '_')}"
+    transports = open_transports(session, settings, node_name)
+    gateway = Gateway(session, keys, settings, names, transports)
+    gateway.start(robot, urdf)
+    token = session.liveliness().declare_token(keys.alive("ros2"))
+    logger.info("ros2 face up: node %s in %s, domain %d on %s; %s, %s", node_name, names.namespace,
+                settings.domain_id, settings.transports, names.joint_states, names.forward_command)
+    period_s = 1.0 / settings.status_rate_hz
+    seq = 0
+    last_count, last_time = 0, time.monotonic()
+    try:
+        while not stop.wait(period_s):
+            if gateway.sim_restarted.is_set():
+                robot = fetch_robot(session, keys, settings.info_timeout_s, stop, RobotJoints.from_info, logger)
+                if robot is None:
+                    break
+                try:
+                    gateway.adopt(robot, read_urdf(session, keys, settings.info_timeout_s))
+                except LookupError as exc:
+                    logger.warning("the restarted sim's URDF: %s; asking again", exc)
+            now = time.monotonic()
+            count = gateway.counters.joint_states_published
+            gateway.publish_status(seq, (count - last_count) / (now - last_time))
+            last_count, last_time = count, now
+            seq += 1
+    finally:
+        token.undeclare()
+        gateway.close()
+    c = gateway.counters
+    logger.info("%d ROS 2 commands read, %d forwarded, %d rejected; %d joint states published",
+                c.commands_received, c.commands_forwarded, gateway.refusals.count, c.joint_states_published)
+    return 0
