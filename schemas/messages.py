@@ -576,6 +576,13 @@ class UnitreeStatus(Message, frozen=True, tag="unitree_status", kw_only=True):
     """LowCmd_ samples read from rt/lowcmd but dropped unread because a newer one came in the same take
     (latest wins, as on cmd/motors: it would never have been applied). Not errors: counted in
     lowcmd_received, not in rejected."""
+    requests_shed: int = 0
+    """Requests on rt/api/sport/request and rt/api/motion_switcher/request dropped unanswered because more
+    came than the adapter answers (50 a second over both, bursts of 20): a flood is shed before it costs
+    the sim anything."""
+    internal_errors: int = 0
+    """Inputs whose handling failed in a way the adapter did not foresee (a bug): each counted, logged with
+    its traceback at a bounded rate, a request answered 3202; the adapter goes on serving."""
 
 
 class Ros1Status(Message, tag="ros1_status", frozen=True, kw_only=True):

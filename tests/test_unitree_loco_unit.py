@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from zensim.unitree import sport
-from zensim.unitree.loco import NUM_JOINTS, STAND_Q, UPPER_KP, LocoController
+from zensim.unitree.loco import NUM_JOINTS, STAND_Q, UPPER_KD, UPPER_KP, ArmSdkBounds, LocoController, arm_sdk_error
 from zensim.unitree.walk_policy import DEFAULT_LEG_Q, NUM_OBS, WalkPolicy, gravity_in_body, load_weights, observation
 
 UPRIGHT = np.array([1.0, 0.0, 0.0, 0.0])
@@ -114,6 +114,56 @@ def test_sport_answers_codes_as_the_robot():
     assert list(controller.command_now(0.0)) == [1.0, -0.5, 1.0]  # clipped to the policy's range
     for unsupported in (7004, 7005, 7006, 7103, 7104, 7106, 9999):
         assert sport.answer(unsupported, json.dumps({"data": 0}), controller, 0.0) == (3203, "")
+
+
+def test_sport_refuses_every_number_it_cannot_represent_and_never_raises():
+    """Issue 27 item 1: `{"data": 1000...0}` (400 digits) raised OverflowError past a ValueError-only
+    handler and killed the adapter's DDS thread. Every such parameter is a 3204 and changes nothing."""
+    controller = LocoController()
+    assert sport.answer(7101, json.dumps({"data": 706}), controller, 0.0) == (0, "")
+    assert sport.answer(7105, json.dumps({"velocity": [0.2, 0, 0], "duration": 5}), controller, 0.0) == (0, "")
+    huge = "1" + "0" * 400
+    hostile = {
+        7101: ['{"data": %s}' % huge, '{"data": -%s}' % huge, '{"data": 1e400}', '{"data": %d}' % 2**31,
+               '{"data": %s.0}' % huge, '{"data": "1" }', '{"data": [706]}', '{"data": %s}' % ("9" * 5000)],
+        7102: ['{"data": %s}' % huge, '{"data": 1e308}'],
+        7105: ['{"velocity": [%s, 0, 0], "duration": 1}' % huge, '{"velocity": [0, 0, 0], "duration": %s}' % huge,
+               '{"velocity": [1e300, 0, 0], "duration": 1}', '{"velocity": [0, -%s, 0]}' % huge,
+               '{"velocity": [0, 0, 1e400], "duration": 1}', '{"velocity": [0, 0, 0], "duration": 1e10}',
+               '{"velocity": [0, 0, 0], "duration": 1, "pad": "%s"}' % ("x" * 5000)],
+    }
+    for api_id, parameters in hostile.items():
+        for parameter in parameters:
+            assert sport.answer(api_id, parameter, controller, 0.0) == (3204, ""), (api_id, parameter[:60])
+    assert controller.state.fsm_id == 706 and list(controller.command_now(1.0)) == [0.2, 0, 0]  # nothing changed
+    assert sport.answer(7101, json.dumps({"data": 706.0}), controller, 0.0) == (0, "")  # an integral float is fine
+
+
+def test_arm_sdk_refuses_what_the_sim_would_refuse_and_takes_what_it_would_take():
+    """Issue 27 item 2: kp 1e6 (or q 1e30) at weight 1 was blended into every command of the walk, the sim
+    refused them all and the G1 fell. Such a command is refused whole; a sane one passes."""
+    n = 17
+    q_min, q_max = -np.ones(29), np.ones(29)
+    bounds = ArmSdkBounds.of(q_min, q_max, velocity_limit=np.full(29, 10.0), effort_limit=np.full(29, 25.0))
+
+    def error(**change):  # noqa: ANN003
+        values = {"q": np.zeros(n), "dq": np.zeros(n), "kp": np.full(n, 60.0), "kd": np.full(n, 1.5),
+                  "tau": np.zeros(n), "weight": 1.0}
+        for name, change_to in change.items():
+            if name == "weight":
+                values["weight"] = change_to
+            else:
+                index, value = change_to
+                values[name][index] = value
+        return arm_sdk_error(bounds=bounds, **values)
+
+    assert error() is None
+    assert error(q=(6, 1.0 + 6.0)) is None  # within a full turn of its range: the sim clamps it
+    assert error(kp=(3, UPPER_KP)) is None and error(kd=(3, UPPER_KD)) is None
+    for bad in ({"kp": (6, 1e6)}, {"kd": (0, 1e4)}, {"q": (6, 1e30)}, {"q": (6, -1 - 7.0)}, {"dq": (2, 21.0)},
+                {"tau": (16, -51.0)}, {"kp": (1, -1.0)}, {"q": (0, float("nan"))}, {"weight": float("inf")},
+                {"kp": (6, UPPER_KP + 1)}):
+        assert error(**bad) is not None, bad
 
 
 def test_sport_mode_state_bytes_are_what_the_binding_serializes():

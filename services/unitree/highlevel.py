@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 import threading
 
-import numpy as np
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
@@ -26,9 +25,11 @@ from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, MotorComma
 from . import sport
 from .codec import CodecError, decode_low_cmd
 from .highlevel_dds import HighLevelDds
-from .idl import GoIMUState_, RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_, SportModeState_, TimeSpec_
-from .loco import ARM_SDK_FIRST, ARM_SDK_WEIGHT_SLOT, NUM_JOINTS, LocoController, Targets
+from .idl import GoIMUState_, Request_, RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_, SportModeState_, TimeSpec_
+from .loco import (ARM_SDK_FIRST, ARM_SDK_WEIGHT_SLOT, NUM_JOINTS, ArmSdkBounds, LocoController, Targets,
+                   arm_sdk_error)
 from .lowlevel import rpy_from_wxyz
+from .requests import REQUESTS_PER_S, RequestBudget
 
 logger = logging.getLogger("zensim.unitree")
 
@@ -45,6 +46,8 @@ def is_g1(joint_names: tuple[str, ...]) -> bool:
 class HighLevelCounters:
     def __init__(self) -> None:
         self.sport_requests = 0
+        self.requests_shed = 0
+        self.internal_errors = 0
         self.arm_sdk_received = 0
         self.arm_sdk_rejected = 0
         self.loco_commands = 0
@@ -59,10 +62,14 @@ class HighLevel:
         dds: the high-level DDS endpoints.
         publish: puts a MotorCommand on cmd/motors (the adapter's publisher).
         cap_bytes: the input size cap for state/odom.
+        budget: the requests the adapter answers (shared with the motion switcher; requests.py).
     """
 
-    def __init__(self, session: zenoh.Session, keys: Keys, dds: HighLevelDds, publish, cap_bytes: int) -> None:  # noqa: ANN001
+    def __init__(self, session: zenoh.Session, keys: Keys, dds: HighLevelDds, publish, cap_bytes: int,  # noqa: ANN001
+                 budget: RequestBudget) -> None:
         self._dds = dds
+        self._budget = budget
+        self._arm_bounds: ArmSdkBounds | None = None
         self._publish = publish
         self._cap_bytes = cap_bytes
         self._lock = threading.Lock()
@@ -76,16 +83,26 @@ class HighLevel:
         self._odom_count = 0
         self._log = RateLimitedLog(logger, 1.0)
         self._request_log = RateLimitedLog(logger, 1.0)  # one line per request: a flood of them is bounded
+        self._shed_log = RateLimitedLog(logger, 1.0)
+        self._error_log = RateLimitedLog(logger, 1.0)
         # The newest odometry only, pulled at SportModeState_'s rate from the state ticks: a Python
         # callback per 500 Hz sample would take the GIL from the DDS thread 500 times a second.
         self._odom = session.declare_subscriber(keys.odom, zenoh.handlers.RingChannel(1))
 
-    def adopt(self, joint_names: tuple[str, ...], cap_bytes: int) -> None:
-        """A (new) robot: the controller runs only on the G1, and starts passive."""
+    def adopt(self, joint_names: tuple[str, ...], cap_bytes: int, arm_bounds: ArmSdkBounds | None = None) -> None:
+        """A (new) robot: the controller runs only on the G1, and starts passive.
+
+        Args:
+            joint_names: the robot's joints, canonical order.
+            cap_bytes: the input size cap for state/odom.
+            arm_bounds: what an arm_sdk command may ask of the robot (from its limits); None: only the
+                checks that need no limits.
+        """
         with self._lock:
             self.enabled = is_g1(joint_names)
             self._joint_names = joint_names
             self._cap_bytes = cap_bytes
+            self._arm_bounds = arm_bounds
             self.controller.release()
             self.controller.arm_sdk = None
             self._latest = None
@@ -171,15 +188,24 @@ class HighLevel:
                 self._handle_arm_sdk(data)
 
     def _handle_requests(self) -> None:
-        while True:
-            try:
-                request = self._dds.take_request()
-            except Exception as exc:  # the binding raises assorted errors on an undecodable sample
-                self._log.warning("undecodable sport request: %s", bounded(str(exc)))
-                return
-            if request is None:
-                return
-            identity = request.header.identity
+        """Take every waiting sport request; answer those the budget admits (requests.py), shed the rest."""
+        intake = self._budget.admit(self._dds.take_requests())
+        with self._lock:
+            self.counters.requests_shed += intake.shed
+        if intake.shed:
+            self._shed_log.warning("sport: %d request(s) shed unanswered (more than %g a second come in)",
+                                   intake.shed, REQUESTS_PER_S)
+        for why in intake.undecodable:
+            self._log.warning("undecodable sport request: %s", why)
+        for request in intake.requests:
+            self._answer(request)
+
+    def _answer(self, request: Request_) -> None:
+        """Apply one sport request and answer it. A failure nobody foresaw is answered 3202 (the SDK's
+        server-internal error), counted and logged with its traceback at a bounded rate: one request
+        never ends the thread that serves the others (a 400-digit integer once did)."""
+        identity = request.header.identity
+        try:
             with self._lock:
                 self.counters.sport_requests += 1
                 if self.enabled:
@@ -193,15 +219,21 @@ class HighLevel:
                         self._tick(force=True)
                 else:
                     code, data = sport.RPC_ERR_SERVER_API_NOT_IMPL, ""
-            self._request_log.info("sport: api %d %s -> code %d %s", identity.api_id, bounded(request.parameter, 80), code,
-                        bounded(data, 80))
-            if request.header.policy.noreply:
-                continue
-            self._dds.respond(Response_(
-                header=ResponseHeader_(identity=RequestIdentity_(id=identity.id, api_id=identity.api_id),
-                                       status=ResponseStatus_(code=code)),
-                data=data, binary=[],
-            ))
+        except Exception:
+            with self._lock:
+                self.counters.internal_errors += 1
+            self._error_log.exception("sport request (api %d) failed: answered %d, counted in internal_errors",
+                                      identity.api_id, sport.RPC_ERR_SERVER_INTERNAL)
+            code, data = sport.RPC_ERR_SERVER_INTERNAL, ""
+        self._request_log.info("sport: api %d %s -> code %d %s", identity.api_id, bounded(request.parameter, 80), code,
+                               bounded(data, 80))
+        if request.header.policy.noreply:
+            return
+        self._dds.respond(Response_(
+            header=ResponseHeader_(identity=RequestIdentity_(id=identity.id, api_id=identity.api_id),
+                                   status=ResponseStatus_(code=code)),
+            data=data, binary=[],
+        ))
 
     def _handle_arm_sdk(self, data: bytes) -> None:
         error = None
@@ -213,10 +245,7 @@ class HighLevel:
                 motors = cmd.motors[ARM_SDK_FIRST:NUM_JOINTS]
                 weight = float(cmd.motors["q"][ARM_SDK_WEIGHT_SLOT])
                 values = {f: motors[f].astype(float) for f in ("q", "dq", "kp", "kd", "tau")}
-                if not (np.isfinite(weight) and all(np.all(np.isfinite(v)) for v in values.values())):
-                    error = "a non-finite value"
-                elif np.any(values["kp"] < 0) or np.any(values["kd"] < 0):
-                    error = "a negative gain"
+                error = arm_sdk_error(weight=weight, bounds=self._arm_bounds, **values)
         except CodecError as exc:
             error = bounded(str(exc))
         with self._lock:
@@ -248,7 +277,8 @@ class HighLevel:
             return {"sport_requests": c.sport_requests, "arm_sdk_received": c.arm_sdk_received,
                     "arm_sdk_rejected": c.arm_sdk_rejected, "loco_commands": c.loco_commands,
                     "loco_active": state.active, "loco_fsm_id": state.fsm_id,
-                    "policy_steps": self.controller.policy_steps}
+                    "policy_steps": self.controller.policy_steps, "requests_shed": c.requests_shed,
+                    "internal_errors": c.internal_errors}
 
     def close(self) -> None:
         self._odom.undeclare()

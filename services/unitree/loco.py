@@ -121,6 +121,68 @@ class ArmSdk:
     tau: np.ndarray
 
 
+ARM_SDK_MAX_KP: Final = UPPER_KP
+ARM_SDK_MAX_KD: Final = UPPER_KD
+"""arm_sdk gains are at most the controller's own on the upper body: the blend of two commands the sim
+accepts is one it accepts, whatever its --max-kp (a kp of 1e6 at weight 1 made the sim refuse every
+command of the walk after it, and the G1 fell)."""
+FULL_TURN: Final = 2 * math.pi
+EFFORT_FACTOR: Final = 2.0
+VELOCITY_FACTOR: Final = 2.0
+FALLBACK_EFFORT: Final = 1000.0
+FALLBACK_VELOCITY: Final = 100.0
+"""The sim's own rules for a motor command (services/sim/physics.py: q within a full turn of the joint's
+range, |dq| at most twice the velocity limit, |tau| at most twice the effort limit, fallbacks for a joint
+without limits): an arm_sdk command outside them would make every blended command refused."""
+
+
+@dataclass(frozen=True)
+class ArmSdkBounds:
+    """What an rt/arm_sdk command may ask of motors 12..28, from the robot's limits (RobotInfo)."""
+
+    q_low: np.ndarray
+    q_high: np.ndarray
+    max_dq: np.ndarray
+    max_tau: np.ndarray
+
+    @classmethod
+    def of(cls, q_min: Sequence[float], q_max: Sequence[float], velocity_limit: Sequence[float],
+           effort_limit: Sequence[float]) -> ArmSdkBounds:
+        """The bounds of the arm_sdk motors from the robot's per-joint limits (every joint, canonical order)."""
+        s = slice(ARM_SDK_FIRST, NUM_JOINTS)
+        velocity, effort = np.asarray(velocity_limit, float)[s], np.asarray(effort_limit, float)[s]
+        velocity = np.where(np.isfinite(velocity) & (velocity > 0), velocity, FALLBACK_VELOCITY)
+        effort = np.where(np.isfinite(effort) & (effort > 0), effort, FALLBACK_EFFORT)
+        return cls(np.asarray(q_min, float)[s] - FULL_TURN, np.asarray(q_max, float)[s] + FULL_TURN,
+                   VELOCITY_FACTOR * velocity, EFFORT_FACTOR * effort)
+
+
+def arm_sdk_error(q: np.ndarray, dq: np.ndarray, kp: np.ndarray, kd: np.ndarray, tau: np.ndarray, weight: float,
+                  bounds: ArmSdkBounds | None) -> str | None:
+    """Why an rt/arm_sdk command (motors 12..28, their values in joint order) cannot be taken, or None.
+
+    Refused whole: a non-finite value, a negative gain, a gain stiffer than ARM_SDK_MAX_KP/KD, and (when
+    the robot's limits are known) a target the sim would refuse. Nothing of a refused command is blended.
+    """
+    values = {"q": q, "dq": dq, "kp": kp, "kd": kd, "tau": tau}
+    if not math.isfinite(weight) or not all(np.all(np.isfinite(v)) for v in values.values()):
+        return "a non-finite value"
+    if np.any(kp < 0) or np.any(kd < 0):
+        return "a negative gain"
+    for name, value, limit in (("kp", kp, ARM_SDK_MAX_KP), ("kd", kd, ARM_SDK_MAX_KD)):
+        if np.any(value > limit):
+            return f"{name} {float(np.max(value)):.4g} above {limit:g} (the controller's own upper-body {name})"
+    if bounds is not None:
+        checks = (("q", (q < bounds.q_low) | (q > bounds.q_high), "more than a full turn outside the joint's range"),
+                  ("dq", np.abs(dq) > bounds.max_dq, "beyond twice the joint's velocity limit"),
+                  ("tau", np.abs(tau) > bounds.max_tau, "beyond twice the joint's effort limit"))
+        for name, bad, why in checks:
+            if np.any(bad):
+                i = int(np.flatnonzero(bad)[0])
+                return f"{name} of motor {ARM_SDK_FIRST + i} is {float(values[name][i]):.4g}, {why}"
+    return None
+
+
 @dataclass
 class Velocity:
     vx: float = 0.0
@@ -213,7 +275,8 @@ class LocoController:
 
     def set_arm_sdk(self, q: np.ndarray, dq: np.ndarray, kp: np.ndarray, kd: np.ndarray, tau: np.ndarray,
                     weight: float) -> None:
-        """Take one rt/arm_sdk command (motors 12..28 and the weight, clipped to [0, 1])."""
+        """Take one rt/arm_sdk command (motors 12..28 and the weight, clipped to [0, 1]), checked first
+        with `arm_sdk_error`: the controller blends whatever it is given."""
         self.arm_sdk = ArmSdk(float(np.clip(weight, 0.0, 1.0)), q, dq, kp, kd, tau)
 
     # --- the loop ------------------------------------------------------------------------

@@ -46,6 +46,7 @@ import logging
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import zenoh
@@ -59,10 +60,12 @@ from zensim.schemas.bounds import vector_cap_bytes
 from . import switcher
 from .codec import NUM_MOTORS, CodecError, decode_low_cmd
 from .dds import UnitreeDds
-from .highlevel import HighLevel
+from .highlevel import HighLevel, is_g1
 from .highlevel_dds import HighLevelDds
 from .idl import RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_
+from .loco import ArmSdkBounds
 from .lowlevel import LowCmdError, LowStateBuilder, motor_command
+from .requests import REQUESTS_PER_S, RequestBudget
 from .settings import UnitreeSettings
 
 logger = logging.getLogger("zensim.unitree")
@@ -84,13 +87,18 @@ class Robot:
     """The canonical joint order: LowCmd_/LowState_ motor i is joint i."""
     run_id: str
     """The sim run that described it (RobotInfo.run_id)."""
+    arm_bounds: ArmSdkBounds | None = None
+    """What an rt/arm_sdk command may ask of it (the G1 only: its motors 12..28)."""
 
     @classmethod
     def from_info(cls, info: RobotInfo) -> Robot:
         """Raises ValueError for a robot with more joints than LowCmd_ has motor slots."""
         if len(info.joint_names) > NUM_MOTORS:
             raise ValueError(f"the robot has {len(info.joint_names)} joints; LowCmd_ has {NUM_MOTORS} motor slots")
-        return cls(tuple(info.joint_names), info.run_id)
+        bounds = None
+        if is_g1(tuple(info.joint_names)):
+            bounds = ArmSdkBounds.of(info.q_min, info.q_max, info.velocity_limit, info.effort_limit)
+        return cls(tuple(info.joint_names), info.run_id, bounds)
 
 
 class Counters:
@@ -105,6 +113,9 @@ class Counters:
         self.ab_mode_commands = 0
         self.lowstate_published = 0
         self.motion_switcher_requests = 0
+        self.requests_shed = 0
+        self.internal_errors = 0
+        """Inputs whose handling raised an error nobody foresaw (a bug): counted, logged, survived."""
         self.sim_time_s = 0.0
         self.last_command: float | None = None  # monotonic time of the newest forwarded LowCmd_
         self.last_error: str | None = None
@@ -132,14 +143,17 @@ class UnitreeAdapter:
         self._reject_log = RateLimitedLog(logger, 1.0)
         self._request_log = RateLimitedLog(logger, 1.0)
         self._state_log = RateLimitedLog(logger, 5.0)
+        self._shed_log = RateLimitedLog(logger, 1.0)
+        self._error_log = RateLimitedLog(logger, 1.0)
+        self._budget = RequestBudget()
         self._ab_logged = False
         self._motors = TypedPublisher.of(session, keys, topics.MOTORS)
         self._status = TypedPublisher.of(session, keys, topics.UNITREE_STATUS)
         # The sport service, arm_sdk and SportModeState_ (highlevel.py): its controller's commands go
         # out on the same cmd/motors publisher as forwarded LowCmd_.
         self._motors_lock = threading.Lock()
-        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._put_motors, self._cap_bytes)
-        self.highlevel.adopt(robot.joint_names, self._cap_bytes)
+        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._put_motors, self._cap_bytes, self._budget)
+        self.highlevel.adopt(robot.joint_names, self._cap_bytes, robot.arm_bounds)
         # One subscriber, so one callback thread, for the sim's states: see the module docstring.
         # Other state/* keys (odom, the adapter's own status) are dropped by the key lookup.
         self._state_routes = {keys.joints: self._on_joints, keys.imu: self._on_imu,
@@ -154,7 +168,7 @@ class UnitreeAdapter:
             self._cap_bytes = vector_cap_bytes(robot.joint_names)
             self.sim_restarted.clear()
         if self.highlevel is not None:
-            self.highlevel.adopt(robot.joint_names, self._cap_bytes)
+            self.highlevel.adopt(robot.joint_names, self._cap_bytes, robot.arm_bounds)
 
     # --- zensim -> DDS (the state callback thread) ---------------------------------
 
@@ -256,17 +270,16 @@ class UnitreeAdapter:
             self._motors.put(command)
 
     def handle_requests(self) -> None:
-        """Answer every waiting motion-switcher request."""
-        while True:
-            try:
-                request = self._dds.take_request()
-            except Exception as exc:  # the binding raises assorted errors on an undecodable sample
-                # The sample is taken (gone) either way; the rest wait for the next wake-up, so a
-                # reader that keeps failing cannot spin this thread.
-                self._reject_log.warning("undecodable motion-switcher request: %s", bounded(str(exc)))
-                return
-            if request is None:
-                return
+        """Take every waiting motion-switcher request; answer those the budget admits (requests.py)."""
+        intake = self._budget.admit(self._dds.take_requests())
+        with self._lock:
+            self.counters.requests_shed += intake.shed
+        if intake.shed:
+            self._shed_log.warning("motion switcher: %d request(s) shed unanswered (more than %g a second come in)",
+                                   intake.shed, REQUESTS_PER_S)
+        for why in intake.undecodable:
+            self._reject_log.warning("undecodable motion-switcher request: %s", why)
+        for request in intake.requests:
             identity = request.header.identity
             code, data = switcher.answer(identity.api_id, self.highlevel is not None and self.highlevel.active())
             if identity.api_id == switcher.API_ID_RELEASE_MODE and self.highlevel is not None:
@@ -283,22 +296,40 @@ class UnitreeAdapter:
             ))
 
     def dds_loop(self, stop: threading.Event) -> None:
-        """The DDS thread: wait for samples, handle them, until `stop`."""
+        """The DDS thread: wait for samples, handle them, until `stop`.
+
+        It wakes at most once per LOWCMD_TAKE_PERIOD_S whatever comes in (a flood on any reader piles
+        up in that reader meanwhile and is taken in one go), and each reader's handling is guarded: an
+        error nobody foresaw is counted (internal_errors), logged with its traceback at a bounded rate,
+        and the thread goes on serving the others.
+        """
         next_take = 0.0
         while not stop.is_set():
             self._dds.wait(DDS_WAIT_S)
+            wait_s = next_take - time.monotonic()
+            if wait_s > 0:
+                time.sleep(wait_s)  # at most LOWCMD_TAKE_PERIOD_S: a flood's samples pile up meanwhile
+            next_take = time.monotonic() + LOWCMD_TAKE_PERIOD_S
             if self._dds.has_lowcmd():
-                wait_s = next_take - time.monotonic()
-                if wait_s > 0:
-                    time.sleep(wait_s)  # at most LOWCMD_TAKE_PERIOD_S: a flood's samples pile up meanwhile
-                next_take = time.monotonic() + LOWCMD_TAKE_PERIOD_S
-                samples = self._dds.take_lowcmd()
-                if samples:  # latest wins: the older ones would be overwritten before a physics step
-                    self.handle_lowcmd(samples[-1], shed=len(samples) - 1)
+                self._guarded("rt/lowcmd", self._take_lowcmd)
             if self._dds.has_request():
-                self.handle_requests()
+                self._guarded("rt/api/motion_switcher/request", self.handle_requests)
             if self.highlevel is not None:
-                self.highlevel.poll()
+                self._guarded("the sport service or rt/arm_sdk", self.highlevel.poll)
+
+    def _take_lowcmd(self) -> None:
+        samples = self._dds.take_lowcmd()
+        if samples:  # latest wins: the older ones would be overwritten before a physics step
+            self.handle_lowcmd(samples[-1], shed=len(samples) - 1)
+
+    def _guarded(self, what: str, handle: Callable[[], None]) -> None:
+        try:
+            handle()
+        except Exception as exc:
+            with self._lock:
+                self.counters.internal_errors += 1
+                self.counters.last_error = bounded(f"{what}: {type(exc).__name__}: {exc}")
+            self._error_log.exception("handling %s failed (counted in internal_errors; the DDS thread goes on)", what)
 
     # --- status ----------------------------------------------------------------------
 
@@ -308,6 +339,7 @@ class UnitreeAdapter:
             return self.counters.lowstate_published
 
     def publish_status(self, seq: int, rate_hz: float) -> None:
+        highlevel = self.highlevel.status_fields() if self.highlevel is not None else {}
         with self._lock:
             c = self.counters
             status = UnitreeStatus(
@@ -319,7 +351,8 @@ class UnitreeAdapter:
                 motion_switcher_requests=c.motion_switcher_requests, sim_time_s=c.sim_time_s,
                 command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
                 last_error=c.last_error,
-                **(self.highlevel.status_fields() if self.highlevel is not None else {}),
+                **dict(highlevel, requests_shed=c.requests_shed + highlevel.get("requests_shed", 0),
+                       internal_errors=c.internal_errors + highlevel.get("internal_errors", 0)),
             )
         self._status.put(status)
 
@@ -346,7 +379,7 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     dds = UnitreeDds(settings.domain_id, settings.interface)
     adapter = UnitreeAdapter(session, keys, robot, settings, dds)
-    dds_thread = threading.Thread(target=adapter.dds_loop, args=(stop,), name="dds", daemon=True)
+    dds_thread = threading.Thread(target=adapter.dds_loop, args=(stop,), name="dds", daemon=True)  # its death: below
     dds_thread.start()
     token = session.liveliness().declare_token(keys.alive("unitree"))
     logger.info("unitree adapter up: %d motors <-> %s; DDS domain %d on %s", len(robot.joint_names), keys.root,
@@ -354,8 +387,16 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
     period_s = 1.0 / settings.status_rate_hz
     seq = 0
     last_count, last_time = 0, time.monotonic()
+    code = 0
     try:
         while not stop.wait(period_s):
+            if not dds_thread.is_alive():
+                # Health must be true: without its DDS thread the adapter reads no command, request or
+                # release, so it stops rather than keep a token and a status that say all is well.
+                logger.error("the DDS thread ended (see the error above): rt/lowcmd, the sport service and "
+                             "arm_sdk are no longer read; exiting")
+                code = 1
+                break
             if adapter.sim_restarted.is_set():
                 robot = fetch_robot(session, keys, settings.info_timeout_s, stop, Robot.from_info, logger)
                 if robot is None:
@@ -375,4 +416,4 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
     logger.info("%d LowCmd_ read, %d forwarded, %d shed, %d crc errors, %d rejected; %d LowState_ written",
                 c.lowcmd_received, c.lowcmd_forwarded, c.lowcmd_shed, c.crc_errors, c.rejected,
                 c.lowstate_published)
-    return 0
+    return code

@@ -13,8 +13,10 @@ The request's `parameter` is JSON, as LocoClient writes it; answers are (status 
     7103, 7104, 7106            3203: swing height, stand height (Low/HighStand) and arm tasks (wave, shake hand)
     anything else               3203 (RPC_ERR_SERVER_API_NOT_IMPL)
 A parameter that is not the JSON the call takes, or a value the controller refuses (an unknown FSM id,
-a non-finite velocity), gets 3204 (RPC_ERR_SERVER_API_PARAMETER) and changes nothing. Codes are the
-SDK's (unitree_sdk2py/rpc/internal.py).
+a non-finite velocity), or a number it cannot represent (an integer beyond int32, a number beyond
++-MAX_NUMBER, a parameter longer than MAX_PARAMETER_CHARS) gets 3204 (RPC_ERR_SERVER_API_PARAMETER) and
+changes nothing. Codes are the SDK's (unitree_sdk2py/rpc/internal.py); 3202 (RPC_ERR_SERVER_INTERNAL)
+is the adapter's answer when handling a request failed in a way this module did not foresee.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from .loco import LocoController
 
 API_VERSION: Final = "1.0.0.0"
 RPC_OK: Final = 0
+RPC_ERR_SERVER_INTERNAL: Final = 3202
 RPC_ERR_SERVER_API_NOT_IMPL: Final = 3203
 RPC_ERR_SERVER_API_PARAMETER: Final = 3204
 
@@ -37,6 +40,8 @@ GET_BALANCE_MODE: Final = 7003
 SET_FSM_ID: Final = 7101
 SET_BALANCE_MODE: Final = 7102
 SET_VELOCITY: Final = 7105
+MAX_PARAMETER_CHARS: Final = 4096
+"""Longest parameter parsed: LocoClient's are a few dozen characters."""
 
 
 class ParameterError(ValueError):
@@ -53,11 +58,37 @@ def _data(parameter: str) -> object:
     return value["data"]
 
 
+MAX_INTEGER: Final = 2**31 - 1
+"""The largest integer parameter taken: the robot's ids and modes are int32."""
+MAX_NUMBER: Final = 1e9
+"""The largest magnitude a velocity or duration parameter may have. Larger values are refused here,
+before any float conversion: a JSON integer of 400 digits is a valid Python int that `float()` cannot
+represent (OverflowError), and it once killed the request thread."""
+
+
 def _integer(value: object) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or value != int(value):
-        raise ParameterError(f"expected an integer, got {value!r:.40}")
-    return int(value)
+    """An integer parameter, refused unless it is a JSON integer (or an integral float) within int32."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(f"expected an integer, got {type(value).__name__}")
+    if isinstance(value, float):
+        if not (math.isfinite(value) and value.is_integer()):
+            raise ParameterError(f"expected an integer, got {value!r:.40}")
+        value = int(value)
+    if not -MAX_INTEGER - 1 <= value <= MAX_INTEGER:
+        raise ParameterError(f"an integer out of range ({len(str(abs(value)))} digits)")
+    return value
+
+
+def _number(value: object) -> float:
+    """A finite number parameter of magnitude at most MAX_NUMBER (integers of any size are compared
+    as integers, never converted first)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(f"expected a number, got {type(value).__name__}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ParameterError(f"expected a finite number, got {value!r}")
+    if not -MAX_NUMBER <= value <= MAX_NUMBER:
+        raise ParameterError(f"a number beyond +-{MAX_NUMBER:g}")
+    return float(value)
 
 
 def _velocity(parameter: str) -> tuple[float, float, float, float]:
@@ -68,16 +99,17 @@ def _velocity(parameter: str) -> tuple[float, float, float, float]:
     if not isinstance(value, dict):
         raise ParameterError('parameter must be {"velocity": [vx, vy, wz], "duration": s}')
     velocity, duration = value.get("velocity"), value.get("duration", 1.0)
-    numbers = [*velocity, duration] if isinstance(velocity, list) and len(velocity) == 3 else None
-    if numbers is None or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers):
+    if not (isinstance(velocity, list) and len(velocity) == 3):
         raise ParameterError('parameter must be {"velocity": [vx, vy, wz], "duration": s} with numbers')
-    vx, vy, wz, seconds = (float(v) for v in numbers)
+    vx, vy, wz, seconds = (_number(v) for v in (*velocity, duration))
     return vx, vy, wz, seconds
 
 
 def answer(api_id: int, parameter: str, controller: LocoController, now_s: float) -> tuple[int, str]:
     """The (status code, data) for one request; applies it to `controller` (at sim time `now_s`)."""
     state = controller.state
+    if len(parameter) > MAX_PARAMETER_CHARS:
+        return RPC_ERR_SERVER_API_PARAMETER, ""
     try:
         if api_id == API_ID_VERSION:
             return RPC_OK, API_VERSION
