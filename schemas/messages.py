@@ -578,7 +578,7 @@ class UnitreeStatus(Message, frozen=True, tag="unitree_status", kw_only=True):
     lowcmd_received, not in rejected."""
     requests_shed: int = 0
     """Requests on rt/api/sport/request and rt/api/motion_switcher/request dropped unanswered because more
-    came than the adapter answers (50 a second over both, bursts of 20): a flood is shed before it costs
+    came than the adapter answers (100 a second over both, bursts of 50): a flood is shed before it costs
     the sim anything."""
     internal_errors: int = 0
     """Inputs whose handling failed in a way the adapter did not foresee (a bug): each counted, logged with

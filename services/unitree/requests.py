@@ -25,9 +25,10 @@ from .idl import Request_
 
 REQUEST_HISTORY: Final = 32
 """Requests a service's reader keeps between two takes (Cyclone's default keeps 1)."""
-REQUESTS_PER_S: Final = 50.0
-"""Requests answered per second, sustained, over both services (LocoClient programs send a few)."""
-REQUEST_BURST: Final = 20.0
+REQUESTS_PER_S: Final = 100.0
+"""Requests answered per second, sustained, over both services (LocoClient programs send a few; one
+answer costs about a millisecond, so this is at most a tenth of a core)."""
+REQUEST_BURST: Final = 50.0
 """Requests answered at once after a quiet spell."""
 
 
