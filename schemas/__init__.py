@@ -37,6 +37,10 @@ from .messages import (
     SimStatus,
     StepRequest,
     UnitreeStatus,
+    VelocityCommand,
+    ArmCommand,
+    LocoRequest,
+    LocoStatus,
 )
 
 __all__ = [
@@ -48,5 +52,5 @@ __all__ = [
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
     "UnitreeStatus",
     "AdvanceReply", "AppliedCommand", "Ros1Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
-    "WorldInfo", "WorldRobot",
+    "WorldInfo", "WorldRobot", "VelocityCommand", "ArmCommand", "LocoRequest", "LocoStatus",
 ]

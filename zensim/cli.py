@@ -10,6 +10,7 @@
     zensim secure   make the credentials of a secured network (secure init DIR)
     zensim unitree  Unitree's DDS LowCmd/LowState for SDK controllers
     zensim ros1     the ROS 1 gateway: RViz, joint_state_publisher_gui, controller topics
+    zensim loco     the walking controller: cmd/velocity, ctl/loco (and the sport service, /cmd_vel)
     zensim record   record a robot's samples into MCAP; replay, resim: play or re-simulate one
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
@@ -36,13 +37,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "secure": ("zensim.secure", "make TLS certificates, passwords and role configs (secure init DIR)"),
     "unitree": ("zensim.unitree.__main__", "run the Unitree DDS adapter (unitree_sdk2's rt/lowcmd, rt/lowstate)"),
     "ros1": ("zensim.ros1.__main__", "run the ROS 1 gateway (robot_description, joint states, controller topics)"),
+    "loco": ("zensim.loco.__main__", "run the walking controller (cmd/velocity, ctl/loco, state/loco)"),
     "record": ("zensim.record", "record every sample of a robot into an MCAP file"),
     "replay": ("zensim.replay", "publish a recording's states again (the viewer draws the past run)"),
     "resim": ("zensim.resim", "re-simulate a recording's commands and report the divergence"),
 }
 
 
-LONG_RUNNING = frozenset({"sim", "bridge", "viz", "router", "unitree", "ros1"})
+LONG_RUNNING = frozenset({"sim", "bridge", "viz", "router", "unitree", "ros1", "loco"})
 
 
 def usage() -> str:

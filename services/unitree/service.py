@@ -13,8 +13,8 @@ Writes:
     {robot}/state/unitree             UnitreeStatus at status_rate_hz
     {robot}/alive/unitree             liveliness token, once the robot is known
 The G1's high-level API (highlevel.py: rt/api/sport/*, rt/arm_sdk, rt/odommodestate) shares the
-participant, the DDS thread and the cmd/motors publisher; its locomotion controller ticks on the
-state pairs that make LowState_.
+participant and the DDS thread; it forwards to the walking controller, `zensim loco` (ctl/loco,
+cmd/velocity, cmd/arms; its state on state/loco).
 
 A DDS thread waits on both DDS readers; one zenoh callback thread (one subscriber on `state/*`)
 builds LowState_. Nothing queues: a LowCmd_ is forwarded as soon as it is read, a LowState_ written
@@ -60,10 +60,9 @@ from zensim.schemas.bounds import vector_cap_bytes
 from . import switcher
 from .codec import NUM_MOTORS, CodecError, decode_low_cmd
 from .dds import UnitreeDds
-from .highlevel import HighLevel, is_g1
+from .highlevel import HighLevel
 from .highlevel_dds import HighLevelDds
 from .idl import RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_
-from .loco import ArmSdkBounds
 from .lowlevel import LowCmdError, LowStateBuilder, motor_command
 from .requests import REQUESTS_PER_S, RequestBudget
 from .settings import UnitreeSettings
@@ -87,18 +86,13 @@ class Robot:
     """The canonical joint order: LowCmd_/LowState_ motor i is joint i."""
     run_id: str
     """The sim run that described it (RobotInfo.run_id)."""
-    arm_bounds: ArmSdkBounds | None = None
-    """What an rt/arm_sdk command may ask of it (the G1 only: its motors 12..28)."""
 
     @classmethod
     def from_info(cls, info: RobotInfo) -> Robot:
         """Raises ValueError for a robot with more joints than LowCmd_ has motor slots."""
         if len(info.joint_names) > NUM_MOTORS:
             raise ValueError(f"the robot has {len(info.joint_names)} joints; LowCmd_ has {NUM_MOTORS} motor slots")
-        bounds = None
-        if is_g1(tuple(info.joint_names)):
-            bounds = ArmSdkBounds.of(info.q_min, info.q_max, info.velocity_limit, info.effort_limit)
-        return cls(tuple(info.joint_names), info.run_id, bounds)
+        return cls(tuple(info.joint_names), info.run_id)
 
 
 class Counters:
@@ -149,11 +143,10 @@ class UnitreeAdapter:
         self._ab_logged = False
         self._motors = TypedPublisher.of(session, keys, topics.MOTORS)
         self._status = TypedPublisher.of(session, keys, topics.UNITREE_STATUS)
-        # The sport service, arm_sdk and SportModeState_ (highlevel.py): its controller's commands go
-        # out on the same cmd/motors publisher as forwarded LowCmd_.
         self._motors_lock = threading.Lock()
-        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._put_motors, self._cap_bytes, self._budget)
-        self.highlevel.adopt(robot.joint_names, self._cap_bytes, robot.arm_bounds)
+        # The sport service, arm_sdk and SportModeState_ (highlevel.py): forwarded to `zensim loco`.
+        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._cap_bytes, self._budget)
+        self.highlevel.adopt(robot.joint_names, self._cap_bytes)
         # One subscriber, so one callback thread, for the sim's states: see the module docstring.
         # Other state/* keys (odom, the adapter's own status) are dropped by the key lookup.
         self._state_routes = {keys.joints: self._on_joints, keys.imu: self._on_imu,
@@ -168,7 +161,7 @@ class UnitreeAdapter:
             self._cap_bytes = vector_cap_bytes(robot.joint_names)
             self.sim_restarted.clear()
         if self.highlevel is not None:
-            self.highlevel.adopt(robot.joint_names, self._cap_bytes, robot.arm_bounds)
+            self.highlevel.adopt(robot.joint_names, self._cap_bytes)
 
     # --- zensim -> DDS (the state callback thread) ---------------------------------
 
@@ -215,7 +208,7 @@ class UnitreeAdapter:
             self._state_log.warning("cannot turn state/%s into LowState_: %s", which, exc)
             return
         if pair is not None and self.highlevel is not None:
-            self.highlevel.on_state(*pair)  # the locomotion controller ticks on the sim's states
+            self.highlevel.on_state(*pair)  # SportModeState_ at its rate
 
     # --- DDS -> zensim (the DDS thread) --------------------------------------------
 
@@ -264,8 +257,7 @@ class UnitreeAdapter:
         self._put_motors(command.command)
 
     def _put_motors(self, command) -> None:  # noqa: ANN001
-        """cmd/motors from the DDS thread (LowCmd_) or a state callback (the locomotion controller):
-        one zenoh publisher, used by one thread at a time."""
+        """cmd/motors from the DDS thread (LowCmd_): one zenoh publisher, used by one thread at a time."""
         with self._motors_lock:
             self._motors.put(command)
 
