@@ -43,6 +43,10 @@ class Walker:
         self.loco = start_service("loco")
         wait_for(lambda: "zensim loco up" in self.loco.log() or not self.loco.alive(), 60, "zensim loco to start")
         assert self.loco.alive(), self.loco.log()
+        # Its alive/loco token is declared after its queryable: once this session sees the token, a query
+        # reaches the queryable (before, the router may not have passed the declaration on yet).
+        wait_for(lambda: any(r.ok is not None for r in zsession.liveliness().get(self.keys.alive("loco"), timeout=1)),
+                 30, "alive/loco")
 
     def run_until(self, sim_time_s: float) -> Odometry:
         return self.odom.wait(lambda m: m.sim_time_s >= sim_time_s, 30 + 6 * max(0.0, sim_time_s - self.now()),
@@ -128,26 +132,22 @@ def test_the_velocity_timeout_stops_a_robot_whose_client_died(walker, router_end
 
 
 def test_bad_velocity_commands_and_requests_are_refused_counted_and_the_robot_stays_up(walker):
-    """NaN, 1e9, oversize, unknown fields, unknown FSM ids, a wildcard query, a flood: refused or shed, counted;
+    """NaN, 1e9, oversize (10 kB: the router itself drops cmd/** payloads over 64 kB), unknown fields, unknown FSM ids, a wildcard query, a flood: refused or shed, counted;
     the controller goes on (it keeps time: states and policy steps go on) and the robot stays up."""
     walker.stand_up()
     keys, session = walker.keys, walker.session
     before = walker.loco_status.wait(what="a status")
     bad = [json.dumps({"vx": 1e9}), json.dumps({"vx": 0.3, "timeout_s": -1}), json.dumps({"vx": 0.3, "timeout_s": 1e9}),
            '{"vx": NaN}', json.dumps({"v_x": 0.3}), json.dumps({"vx": "fast"}), b"\xff" * 10,
-           json.dumps({"vx": 0.3, "pad": "x" * 100_000}), msgspec.msgpack.encode({"vx": float("nan")})]
-    for payload in bad:
+           json.dumps({"vx": 0.3, "pad": "x" * 10_000}), msgspec.msgpack.encode({"vx": float("nan")})]
+    for i, payload in enumerate(bad, 1):
         session.put(keys.velocity, payload)
-        # Latest wins: each bad command must be taken before the next, or it is shed (also counted).
-        walker.loco_status.wait(lambda s, n=before.velocity_received + bad.index(payload) + 1: s.velocity_received >= n
-                                and s.velocity_refused + s.velocity_shed >= n - before.velocity_received
-                                + before.velocity_refused + before.velocity_shed - (n - before.velocity_received) + 1
-                                or False, 30, "the bad command read")
-        walker.run_until(walker.now() + 0.1)
+        walker.loco_status.wait(lambda s, i=i: s.velocity_received >= before.velocity_received + i, 30,
+                                f"bad command {i} read")
     status = walker.loco_status.wait(lambda s: s.velocity_refused + s.velocity_shed - before.velocity_refused
                                      - before.velocity_shed >= len(bad), 30, "every bad command refused or shed")
     assert status.commanded == (0.0, 0.0, 0.0)  # none of them moved the robot
-    assert "refused" not in (status.error or "") or status.error  # a reason is reported
+    assert status.error  # the latest refusal's reason is reported
     for request in ({"fsm_id": 12345}, {"verb": "fly"}, {"fsm_id": 2**40}, {"verb": "walk", "fsm_id": 1}, {"x": 1},
                     {"balance_mode": 7}):
         reply = ctl(session, keys.ctl_loco, request)
