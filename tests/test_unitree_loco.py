@@ -206,6 +206,7 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         # Windows of sim time counted from before each call: under lockstep the sim runs on (several
         # times faster than the wall clock) while a request travels, so the robot walks at most 10 s.
         start = stack.odom.value
+        stack.odom.keep_history = True
         loco.call("Move", 0.3, 0, 0, True)  # continous_move: duration 864000 s
         stack.run_for(0.5)
         assert loco.call("odommodestate")["mode"] == 3  # walking
@@ -218,9 +219,15 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
               f"heading {yaw_of(walked.quat_wxyz) - yaw_of(start.quat_wxyz):+.3f} rad; {forward:.2f} m, {lateral:+.2f} m")
         assert 2.0 <= forward <= 4.0, (start.pos, walked.pos)
         assert abs(lateral) < 0.5, (start.pos, walked.pos)
-        # SportModeState_ read with the SDK's own type: the sim's ground truth.
+        # SportModeState_ read with the SDK's own type: the sim's ground truth at its stamp. (Under lockstep
+        # the walking controller, not the adapter, is the clock: sim time runs several times faster than
+        # the wall clock, so the newest SportModeState_ the SDK holds may be a second or two of sim time old.)
         state = loco.call("odommodestate")
-        assert state is not None and abs(state["position"][0] - stack.odom.value.pos[0]) < 0.3, state
+        assert state is not None
+        stamp = state["sec"] + state["nanosec"] * 1e-9
+        truth = min(stack.odom.history, key=lambda m: abs(m.sim_time_s - stamp))
+        assert abs(truth.sim_time_s - stamp) < 0.05 and abs(state["position"][0] - truth.pos[0]) < 0.05, (state, truth)
+        stack.odom.keep_history = False
         # Stands still after StopMove (the policy balances in place).
         settled = stack.run_for(1.0)
         later = stack.run_for(3.0)
@@ -386,6 +393,8 @@ def test_lockstep_walk_is_recorded_and_resimulates_to_zero(start_service, zsessi
     start_service("sim", "--clock", "lockstep")
     odom = Latest(zsession, keys.odom, Odometry)
     odom.wait(timeout_s=60, what="the initial state")
+    walking = start_service("loco")  # the walking controller: the sport service forwards to it
+    wait_for(lambda: "zensim loco up" in walking.log() or not walking.alive(), 60, "the walking controller to start")
     adapter = start_service("unitree", "--domain-id", str(domain), "--interface", "lo")
     wait_for(lambda: "unitree adapter up" in adapter.log() or not adapter.alive(), 60, "the adapter to start")
     path = tmp_path / "walk.mcap"
@@ -402,8 +411,8 @@ def test_lockstep_walk_is_recorded_and_resimulates_to_zero(start_service, zsessi
         loco.call("ZeroTorque")
     finally:
         loco.close()
-    adapter.signal(signal.SIGTERM)  # stop the clock: no more commands
-    adapter.proc.wait(15)
+    walking.signal(signal.SIGTERM)  # stop the clock: no more commands
+    walking.proc.wait(15)
     time.sleep(0.5)
     recorder.signal(signal.SIGTERM)
     assert recorder.proc.wait(15) == 0, recorder.log()

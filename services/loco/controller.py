@@ -21,7 +21,8 @@ back) restarts the current mode from the spawn squat (walking: it stands up firs
 Walking runs the policy every `period_s` of sim time on its leg joints with its trained gains; the other
 joints are held stiff at 0 rad (`upper_kp`/`upper_kd`), as in training, where the upper body was welded.
 At zero velocity the robot stops stepping: after `settle_s` at zero, at the next instant of the gait with
-both feet down, the policy hands over to a ramp to the stance (`plant_s`) held with the ramp gains (the policy alone steps in place and
+both feet down, the policy hands over to a ramp to the stance (`plant_s`) held with the ramp gains on
+the legs (the upper body keeps its walking gains) (the policy alone steps in place and
 creeps ~5 cm a second); the next non-zero command hands back to the policy, fresh.
 
 Arm blend (Unitree's rt/arm_sdk, forwarded on cmd/arms): targets for the arm joints and a weight w in
@@ -134,6 +135,10 @@ class LocoController:
         self._plant_from: np.ndarray | None = None
         self._plant_start_s = 0.0
         self.policy_steps = 0
+        # Planted: the legs held stiff (the ramp gains), the rest as while walking, so an arm blend sees
+        # the same controller gains stepping or not.
+        self._plant_kp, self._plant_kd = walking.walk_kp.copy(), walking.walk_kd.copy()
+        self._plant_kp[walking.legs], self._plant_kd[walking.legs] = walking.ramp_kp[walking.legs], walking.ramp_kd[walking.legs]
 
     # --- requests ------------------------------------------------------------------------
 
@@ -292,7 +297,7 @@ class LocoController:
             if not moving:
                 ratio = min(1.0, (now_s - self._plant_start_s) / cfg.plant_s)
                 assert self._plant_from is not None
-                return Targets.hold(_lerp(self._plant_from, cfg.stand_q, ratio), cfg.ramp_kp, cfg.ramp_kd)
+                return Targets.hold(_lerp(self._plant_from, cfg.stand_q, ratio), self._plant_kp, self._plant_kd)
             self._begin_walk()  # the next command: the policy starts again from the stance
         if moving:
             self._still_since_s = None
@@ -302,7 +307,7 @@ class LocoController:
             state.planted = True
             self._plant_from = np.array(q, float)
             self._plant_start_s = now_s
-            return Targets.hold(self._plant_from, cfg.ramp_kp, cfg.ramp_kd)
+            return Targets.hold(self._plant_from, self._plant_kp, self._plant_kd)
         return self._walk(now_s, q, dq, quat_wxyz, gyro)
 
     def _walk(self, now_s: float, q: np.ndarray, dq: np.ndarray, quat_wxyz: np.ndarray, gyro: np.ndarray) -> Targets:
