@@ -257,6 +257,14 @@ class LocoService:
         self._request_log.info("ctl/loco: %s -> %s", bounded(str(data, "utf-8", "replace"), 80),
                                "ok" if error is None else error)
 
+    def start(self, verb: str) -> None:
+        """Run a walking verb at start (the `start` setting), as a ctl/loco request would."""
+        with self._lock:
+            error = self._apply(LocoRequest(verb=verb))  # type: ignore[arg-type]  # a LocoVerb, from the settings
+            command = self._tick(force=True) if error is None else None
+        self._put(command)
+        logger.info("started with %r", verb)
+
     def _apply(self, request: LocoRequest) -> str | None:
         """Carry a request out (under `_lock`); the reason it cannot be, or None."""
         controller = self.controller
@@ -353,6 +361,8 @@ def run(session: zenoh.Session, settings: LocoSettings, stop: threading.Event) -
         return 0
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     service = LocoService(session, keys, robot, settings)
+    if settings.start:
+        service.start(settings.start)
     token = session.liveliness().declare_token(keys.alive("loco"))
     logger.info("zensim loco up: %s's walking controller (%s) for %s; cmd/velocity, ctl/loco", robot.name,
                 robot.walking.weights.name, keys.root)
