@@ -70,6 +70,16 @@ class ZenohWalker:
         self._velocity = TypedPublisher.of(session, keys, topics.VELOCITY)
         self._arms = TypedPublisher.of(session, keys, topics.ARMS)
         self._subscriber = session.declare_subscriber(keys.loco_status, self._on_status)
+        # Whether a walking controller is up (its alive/loco token): without one a request fails at once
+        # instead of holding the DDS thread for WALKER_TIMEOUT_S (rt/lowcmd waits behind it).
+        self._present = threading.Event()
+        self._alive = session.liveliness().declare_subscriber(keys.alive("loco"), self._on_alive, history=True)
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._present.set()
+        else:
+            self._present.clear()
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         try:
@@ -92,6 +102,10 @@ class ZenohWalker:
         return latest if latest is not None else self.request()
 
     def request(self, fsm_id: int | None = None, balance_mode: int | None = None, verb: str | None = None) -> LocoStatus:
+        if not self._present.is_set():
+            self._log.warning("no walking controller is up for this robot (start `zensim loco`): sport requests get %d",
+                              sport.RPC_ERR_SERVER_API_NOT_IMPL)
+            raise sport.NoWalker("no walking controller is up")
         payload = self._request_codec.encode(LocoRequest(fsm_id=fsm_id, balance_mode=balance_mode, verb=verb),  # type: ignore[arg-type]
                                              "msgpack")
         for reply in self._session.get(self._keys.ctl_loco, payload=payload, timeout=WALKER_TIMEOUT_S):
@@ -110,6 +124,8 @@ class ZenohWalker:
         raise sport.NoWalker("no walking controller answers")
 
     def velocity(self, vx: float, vy: float, wz: float, duration_s: float) -> None:
+        if not self._present.is_set():
+            raise sport.NoWalker("no walking controller is up")
         # LocoClient may ask up to 1e9 (the controller clips to its robot's range): the wire takes +-10.
         self._velocity.put(VelocityCommand(vx=_clip(vx, MAX_VELOCITY), vy=_clip(vy, MAX_VELOCITY),
                                            wz=_clip(wz, MAX_VELOCITY), timeout_s=min(duration_s, MAX_VELOCITY_TIMEOUT_S)))
@@ -119,6 +135,7 @@ class ZenohWalker:
 
     def close(self) -> None:
         self._subscriber.undeclare()
+        self._alive.undeclare()
         self._velocity.undeclare()
         self._arms.undeclare()
 

@@ -273,7 +273,9 @@ class UnitreeAdapter:
             self._reject_log.warning("undecodable motion-switcher request: %s", why)
         for request in intake.requests:
             identity = request.header.identity
-            code, data = switcher.answer(identity.api_id, self.highlevel is not None and self.highlevel.active())
+            # Only CheckMode needs to know (a question to the walking controller over Zenoh).
+            highlevel = self.highlevel if identity.api_id == switcher.API_ID_CHECK_MODE else None
+            code, data = switcher.answer(identity.api_id, highlevel is not None and highlevel.active())
             if identity.api_id == switcher.API_ID_RELEASE_MODE and self.highlevel is not None:
                 self.highlevel.release()  # a low-level program takes the robot from the sport service
             with self._lock:
