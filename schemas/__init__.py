@@ -41,6 +41,7 @@ from .messages import (
     ArmCommand,
     LocoRequest,
     LocoStatus,
+    RemoteState,
 )
 
 __all__ = [
@@ -52,5 +53,5 @@ __all__ = [
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
     "UnitreeStatus",
     "AdvanceReply", "AppliedCommand", "Ros1Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
-    "WorldInfo", "WorldRobot", "VelocityCommand", "ArmCommand", "LocoRequest", "LocoStatus",
+    "WorldInfo", "WorldRobot", "VelocityCommand", "ArmCommand", "LocoRequest", "LocoStatus", "RemoteState",
 ]

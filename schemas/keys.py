@@ -73,6 +73,7 @@ class Keys:
     arms: str
     ctl_loco: str
     loco_status: str
+    remote: str
 
     def __init__(self, robot: str = DEFAULT_ROBOT_ID) -> None:
         self.robot = check_robot_id(robot)

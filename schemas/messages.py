@@ -583,6 +583,8 @@ class UnitreeStatus(Message, frozen=True, tag="unitree_status", kw_only=True):
     internal_errors: int = 0
     """Inputs whose handling failed in a way the adapter did not foresee (a bug): each counted, logged with
     its traceback at a bounded rate, a request answered 3202; the adapter goes on serving."""
+    remote_rejected: int = 0
+    """Samples on cmd/remote refused whole (not a RemoteState: an unknown button, a stick beyond -1..1, NaN)."""
 
 
 class Ros1Status(Message, tag="ros1_status", frozen=True, kw_only=True):
@@ -761,6 +763,34 @@ class LocoStatus(Message, frozen=True, tag="loco_status", kw_only=True):
     """Steps of the walking policy run since start."""
 
 
+REMOTE_BUTTONS = ("R1", "L1", "Start", "Select", "R2", "L2", "F1", "F3", "A", "B", "X", "Y", "Up", "Right", "Down", "Left")
+"""The buttons of Unitree's wireless remote, in the bit order of LowState_.wireless_remote (bytes 2 and 3)."""
+RemoteButton = Literal["R1", "L1", "Start", "Select", "R2", "L2", "F1", "F3", "A", "B", "X", "Y", "Up", "Right",
+                       "Down", "Left"]
+
+
+class RemoteState(Message, frozen=True, tag="remote_state", kw_only=True, forbid_unknown_fields=True):
+    """Unitree's wireless remote as a person holds it (the viewer's keys or gamepad, any client): the buttons
+    pressed and the sticks. `zensim unitree` writes it into LowState_.wireless_remote in Unitree's byte layout;
+    the newest holds until the next."""
+
+    buttons: tuple[RemoteButton, ...] = ()
+    """Buttons held down."""
+    lx: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.0
+    """Left stick, right positive, -1..1."""
+    ly: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.0
+    """Left stick, forward positive, -1..1."""
+    rx: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.0
+    """Right stick, right positive, -1..1."""
+    ry: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.0
+    """Right stick, forward positive, -1..1."""
+
+    def __post_init__(self) -> None:
+        _check_finite("sticks", (self.lx, self.ly, self.rx, self.ry))
+        if len(set(self.buttons)) != len(self.buttons):
+            raise ValueError("`buttons` names a button more than once")
+
+
 WIRE_TYPES: tuple[type[Message], ...] = (
     JointState,
     Odometry,
@@ -787,5 +817,6 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     ArmCommand,
     LocoRequest,
     LocoStatus,
+    RemoteState,
 )
 """Every top-level message type, in the order the docs list them."""

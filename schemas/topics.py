@@ -46,6 +46,7 @@ from .messages import (
     ArmCommand,
     LocoRequest,
     LocoStatus,
+    RemoteState,
 )
 
 Kind = Literal["publication", "queryable", "liveliness"]
@@ -202,6 +203,9 @@ CTL_LOCO: Final = Topic("ctl/loco", "queryable", "any client, unitree (the sport
 LOCO_STATUS: Final = Topic("state/loco", "publication", "loco (the walking controller, services/loco/README.md)",
                            "anyone (unitree, viz)", "`status_rate_hz`, default 10 Hz, and at each change",
                            LocoStatus, note="(FSM state, commanded and achieved velocity)", name="loco_status")
+REMOTE: Final = Topic("cmd/remote", "publication", "viz (keys, gamepad), any client", "unitree (LowState_.wireless_remote)",
+                      "any; the newest holds", RemoteState, note="(Unitree's wireless remote: buttons, sticks)",
+                      name="remote")
 # --- description ------------------------------------------------------------------
 ROBOT_INFO: Final = Topic("info/robot", "queryable", "sim", "anyone", "on demand", RobotInfo,
                           note="(JSON for `?format=json` or a JSON query payload)", name="robot_info")
@@ -221,7 +225,7 @@ TOPICS: Final[tuple[Topic, ...]] = (
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
     WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE, WORLD_INFO,
     ROBOT_INFO, URDF, MESH, ALIVE, ROUTER_ALIVE,
-    VELOCITY, ARMS, CTL_LOCO, LOCO_STATUS,
+    VELOCITY, ARMS, CTL_LOCO, LOCO_STATUS, REMOTE,
 )
 """Every topic, in the order the docs list them."""
 
@@ -268,7 +272,7 @@ ROLES: Final[tuple[Role, ...]] = (
     Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim", "alive/world")),
     Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
     Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info"), tokens=("alive/viz",)),
-    Role("unitree", "service", "the Unitree DDS adapter (its sport service forwards to `zensim loco`)", publishes=("cmd/motors", "state/unitree", "cmd/velocity", "cmd/arms"), subscribes=("state/**",), queries=("info/**", "ctl/loco"), tokens=("alive/unitree",)),
+    Role("unitree", "service", "the Unitree DDS adapter (its sport service forwards to `zensim loco`)", publishes=("cmd/motors", "state/unitree", "cmd/velocity", "cmd/arms"), subscribes=("state/**", "cmd/remote"), queries=("info/**", "ctl/loco"), tokens=("alive/unitree",)),
     Role("loco", "service", "the walking controller", publishes=("cmd/motors", "state/loco"), subscribes=("state/**", "cmd/velocity", "cmd/arms"), serves=("ctl/loco",), queries=("info/**",), tokens=("alive/loco",)),
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1", "cmd/velocity"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
     Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/**",)),

@@ -76,6 +76,7 @@ SAMPLES["velocity_command"] = dict(vx=0.4, vy=-0.1, wz=0.2, timeout_s=0.5)
 SAMPLES["arm_command"] = dict(names=["a", "b"], weight=0.5, q=[0.1, 0.2], dq=[0, 0], kp=[60, 60], kd=[1.5, 1.5],
                               tau=[0, 0])
 SAMPLES["loco_request"] = dict(verb="walk")
+SAMPLES["remote_state"] = dict(buttons=["A", "Up"], lx=0.5, ly=-0.25, rx=0.0, ry=1.0)
 SAMPLES["loco_status"] = dict(seq=3, sim_time_s=4.2, active=True, fsm_id=500, walking=True, stepping=True,
                               commanded=[0.4, 0.0, 0.0], achieved=[0.38, 0.01, 0.0], velocity_received=9)
 

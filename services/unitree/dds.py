@@ -39,6 +39,8 @@ from .requests import REQUEST_HISTORY
 
 LOWCMD_TOPIC = "rt/lowcmd"
 LOWSTATE_TOPIC = "rt/lowstate"
+LOWSTATE_LF_TOPIC = "rt/lf/lowstate"
+"""The low-frequency copy of LowState_ the robot also publishes (Unitree's wireless_controller example reads it)."""
 MOTION_SWITCHER_REQUEST = "rt/api/motion_switcher/request"
 MOTION_SWITCHER_RESPONSE = "rt/api/motion_switcher/response"
 
@@ -95,6 +97,7 @@ class UnitreeDds:
         self.lowcmd_reader = DataReader(self.participant, Topic(self.participant, LOWCMD_TOPIC, LowCmd_),
                                         qos=Qos(Policy.History.KeepLast(LOWCMD_HISTORY)))
         self.lowstate_writer = DataWriter(self.participant, Topic(self.participant, LOWSTATE_TOPIC, LowState_))
+        self.lowstate_lf_writer = DataWriter(self.participant, Topic(self.participant, LOWSTATE_LF_TOPIC, LowState_))
         self.request_reader = DataReader(self.participant, Topic(self.participant, MOTION_SWITCHER_REQUEST, Request_),
                                          qos=Qos(Policy.History.KeepLast(REQUEST_HISTORY)))
         self.response_writer = DataWriter(self.participant, Topic(self.participant, MOTION_SWITCHER_RESPONSE, Response_))
@@ -121,6 +124,12 @@ class UnitreeDds:
         ret = ddspy_write(self.lowstate_writer._ref, data)
         if ret < 0:
             raise OSError(f"dds_write on {LOWSTATE_TOPIC} failed with {ret}")
+
+    def write_lowstate_lf(self, data: bytes) -> None:
+        """Publish one serialized LowState_ on the low-frequency topic."""
+        ret = ddspy_write(self.lowstate_lf_writer._ref, data)
+        if ret < 0:
+            raise OSError(f"dds_write on {LOWSTATE_LF_TOPIC} failed with {ret}")
 
     def take_requests(self) -> list[bytes]:
         """Every waiting motion-switcher request, serialized (requests.py decodes those it answers)."""

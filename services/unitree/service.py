@@ -6,8 +6,10 @@ Reads:
     {robot}/state/joints, state/imu   JointState + Imu of one instant -> one LowState_
     {robot}/info/robot                RobotInfo, queried at start and after a sim restart (the joint order)
     {robot}/state/sim                 SimStatus: a new `run_id` means a new sim, perhaps another robot
+    {robot}/cmd/remote                RemoteState: Unitree's wireless remote, into LowState_.wireless_remote
 Writes:
     rt/lowstate (DDS)                 LowState_, one per sim state (500 Hz sim states: 500 Hz LowState_)
+    rt/lf/lowstate (DDS)              the same LowState_ every 20 ms of sim time (the low-frequency copy)
     rt/api/motion_switcher/response   Response_
     {robot}/cmd/motors                MotorCommand, every joint, one per accepted LowCmd_
     {robot}/state/unitree             UnitreeStatus at status_rate_hz
@@ -54,8 +56,9 @@ import zenoh
 from zensim.common.logs import RateLimitedLog
 from zensim.common.robot_info import fetch_robot
 from zensim.common.wire import TypedPublisher, decode_input
-from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, RobotInfo, SimStatus, UnitreeStatus, bounded, topics
-from zensim.schemas.bounds import vector_cap_bytes
+from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, RemoteState, RobotInfo, SimStatus, UnitreeStatus, bounded,
+                            topics)
+from zensim.schemas.bounds import MIN_CAP_BYTES, vector_cap_bytes
 
 from . import switcher
 from .codec import NUM_MOTORS, CodecError, decode_low_cmd
@@ -63,7 +66,7 @@ from .dds import UnitreeDds
 from .highlevel import HighLevel
 from .highlevel_dds import HighLevelDds
 from .idl import RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_
-from .lowlevel import LowCmdError, LowStateBuilder, motor_command
+from .lowlevel import LowCmdError, LowStateBuilder, motor_command, wireless_remote
 from .requests import REQUESTS_PER_S, RequestBudget
 from .settings import UnitreeSettings
 
@@ -74,6 +77,8 @@ DDS_WAIT_S = 0.1
 LOWCMD_TAKE_PERIOD_S = 0.001
 """Shortest wall time between two takes of rt/lowcmd. A controller at 500 Hz or 1 kHz (the SDK's
 examples) sends slower than this and never waits; a faster one has its older samples shed."""
+LOWSTATE_LF_PERIOD_S = 0.02
+"""rt/lf/lowstate, the low-frequency copy of LowState_: one per 20 ms of sim time (50 Hz)."""
 GIL_SWITCH_INTERVAL_S = 0.0002
 """Longest a thread that wakes up waits for the GIL while another holds it (CPython default: 5 ms)."""
 
@@ -110,6 +115,7 @@ class Counters:
         self.requests_shed = 0
         self.internal_errors = 0
         """Inputs whose handling raised an error nobody foresaw (a bug): counted, logged, survived."""
+        self.remote_rejected = 0
         self.sim_time_s = 0.0
         self.last_command: float | None = None  # monotonic time of the newest forwarded LowCmd_
         self.last_error: str | None = None
@@ -151,7 +157,10 @@ class UnitreeAdapter:
         # Other state/* keys (odom, the adapter's own status) are dropped by the key lookup.
         self._state_routes = {keys.joints: self._on_joints, keys.imu: self._on_imu,
                               keys.sim_status: self._on_sim_status}
-        self._subscribers = [session.declare_subscriber(f"{keys.root}/state/*", self._on_any_state)]
+        self._remote_codec = Codec(RemoteState)
+        self._next_lf_s: float | None = None
+        self._subscribers = [session.declare_subscriber(f"{keys.root}/state/*", self._on_any_state),
+                             session.declare_subscriber(keys.remote, self._on_remote)]
 
     def adopt(self, robot: Robot) -> None:
         """Take `robot` (at start, and after a sim restart): its joint order is the motor order."""
@@ -200,6 +209,8 @@ class UnitreeAdapter:
                     return
                 self._written = order
                 self._dds.write_lowstate(data)
+                if self._lf_due(message.sim_time_s):
+                    self._dds.write_lowstate_lf(data)
             with self._lock:
                 self.counters.lowstate_published += 1
                 self.counters.sim_time_s = message.sim_time_s
@@ -209,6 +220,26 @@ class UnitreeAdapter:
             return
         if pair is not None and self.highlevel is not None:
             self.highlevel.on_state(*pair)  # SportModeState_ at its rate
+
+    def _lf_due(self, now_s: float) -> bool:
+        """Whether this LowState_ also goes out on rt/lf/lowstate: every LOWSTATE_LF_PERIOD_S of sim time
+        (sim time going back, a reset, starts the schedule over). Called under `_write_lock`."""
+        due = self._next_lf_s is None or now_s >= self._next_lf_s - 1e-9 or now_s < self._next_lf_s - 2 * LOWSTATE_LF_PERIOD_S
+        if due:
+            self._next_lf_s = now_s + LOWSTATE_LF_PERIOD_S
+        return due
+
+    def _on_remote(self, sample: zenoh.Sample) -> None:
+        """cmd/remote: the newest remote state goes into every LowState_ after it (wireless_remote)."""
+        try:
+            remote = wireless_remote(decode_input(sample, self._remote_codec, MIN_CAP_BYTES))
+        except DecodeError as exc:
+            with self._lock:
+                self.counters.remote_rejected += 1
+            self._reject_log.warning("RemoteState on cmd/remote not applied: %s", exc)
+            return
+        with self._lock:
+            self._builder.remote = remote
 
     # --- DDS -> zensim (the DDS thread) --------------------------------------------
 
@@ -344,7 +375,7 @@ class UnitreeAdapter:
                 lowstate_published=c.lowstate_published, lowstate_rate_hz=rate_hz,
                 motion_switcher_requests=c.motion_switcher_requests, sim_time_s=c.sim_time_s,
                 command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
-                last_error=c.last_error,
+                last_error=c.last_error, remote_rejected=c.remote_rejected,
                 **dict(highlevel, requests_shed=c.requests_shed + highlevel.get("requests_shed", 0),
                        internal_errors=c.internal_errors + highlevel.get("internal_errors", 0)),
             )
