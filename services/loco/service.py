@@ -53,6 +53,8 @@ from .settings import LocoSettings
 
 logger = logging.getLogger("zensim.loco")
 
+REQUEST_STATUS_PERIOD_S = 0.05
+"""A ctl/loco request also puts its state on state/loco, at most this often (the reply always carries it)."""
 CLAIM_CHECK_S = 1.0
 """How long the startup check for another walking controller of this robot waits."""
 GIL_SWITCH_INTERVAL_S = 0.0002
@@ -82,6 +84,7 @@ class LocoService:
         self._odom: zenoh.Sample | None = None
         self._velocity: zenoh.Sample | None = None
         self._seq = 0
+        self._last_request_status = 0.0
         self.run_id = robot.info.run_id
         self.sim_restarted = threading.Event()
         self.counts = {"velocity_received": 0, "velocity_refused": 0, "velocity_shed": 0, "requests": 0,
@@ -253,7 +256,10 @@ class LocoService:
             status = self._status_message(ok=error is None, error=error, is_reply=True)
         self._put(command)
         reply(query, own, status, fmt, self._reply_codec)
-        self._status.put(status)
+        now = time.monotonic()
+        if now - self._last_request_status >= REQUEST_STATUS_PERIOD_S:  # a flood of requests: not a status each
+            self._last_request_status = now
+            self._status.put(status)
         self._request_log.info("ctl/loco: %s -> %s", bounded(str(data, "utf-8", "replace"), 80),
                                "ok" if error is None else error)
 
