@@ -38,6 +38,11 @@ from .messages import (
     SimStatus,
     StepRequest,
     UnitreeStatus,
+    VelocityCommand,
+    ArmCommand,
+    LocoRequest,
+    LocoStatus,
+    RemoteState,
 )
 
 __all__ = [
@@ -49,5 +54,5 @@ __all__ = [
     "PauseRequest", "ResetRequest", "ResumeRequest", "RobotInfo", "SimStatus", "StepRequest",
     "UnitreeStatus",
     "AdvanceReply", "AppliedCommand", "Ros1Status", "Ros2Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
-    "WorldInfo", "WorldRobot",
+    "WorldInfo", "WorldRobot", "VelocityCommand", "ArmCommand", "LocoRequest", "LocoStatus", "RemoteState",
 ]

@@ -16,7 +16,7 @@ from .topics import TOPICS, Topic
 ROOT: Final = "zensim"
 DEFAULT_ROBOT_ID: Final = "g1"
 ROBOT_ID_PATTERN: Final = re.compile(r"[a-z0-9_-]+")
-SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree", "ros1", "ros2")
+SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree", "ros1", "ros2", "loco")
 """Every service that declares `alive/{service}`; `zensim up` starts the first four in this order (the
 unitree adapter in place of the bridge with `--unitree`, the ROS 1 gateway with `--ros1`, the ROS 2 face last with `--ros2`)."""
 
@@ -70,6 +70,11 @@ class Keys:
     urdf: str
     mesh_any: str
     alive_any: str
+    velocity: str
+    arms: str
+    ctl_loco: str
+    loco_status: str
+    remote: str
 
     def __init__(self, robot: str = DEFAULT_ROBOT_ID) -> None:
         self.robot = check_robot_id(robot)

@@ -745,6 +745,15 @@ class UnitreeStatus(Message, frozen=True, tag="unitree_status", kw_only=True):
     """LowCmd_ samples read from rt/lowcmd but dropped unread because a newer one came in the same take
     (latest wins, as on cmd/motors: it would never have been applied). Not errors: counted in
     lowcmd_received, not in rejected."""
+    requests_shed: int = 0
+    """Requests on rt/api/sport/request and rt/api/motion_switcher/request dropped unanswered because more
+    came than the adapter answers (100 a second over both, bursts of 50): a flood is shed before it costs
+    the sim anything."""
+    internal_errors: int = 0
+    """Inputs whose handling failed in a way the adapter did not foresee (a bug): each counted, logged with
+    its traceback at a bounded rate, a request answered 3202; the adapter goes on serving."""
+    remote_rejected: int = 0
+    """Samples on cmd/remote refused whole (not a RemoteState: an unknown button, a stick beyond -1..1, NaN)."""
 
 
 class Ros1Status(Message, tag="ros1_status", frozen=True, kw_only=True):
@@ -811,6 +820,175 @@ class Ros2Status(Message, tag="ros2_status", frozen=True, kw_only=True):
     """Wall time since the newest forwarded command, s; null before the first one."""
 
 
+# --- walking: `zensim loco` (the walking controller) -------------------------------
+
+MAX_VELOCITY: float = 10.0
+"""No walking robot goes 10 m/s or turns 10 rad/s: a velocity beyond is refused whole as absurd (within
+it, the walking service clips to its robot's own range, `velocity_limits` of LocoStatus)."""
+MAX_VELOCITY_TIMEOUT_S: float = 864000.0
+"""The longest a velocity command may hold (LocoClient.Move(continous_move=True) asks 864000 s)."""
+DEFAULT_VELOCITY_TIMEOUT_S: float = 0.5
+"""A velocity command lapses after this much sim time unless the next one comes: a client that died
+(or lost its link) leaves a robot that stops and stands, not one that walks on."""
+LOCO_VERBS = ("zero_torque", "damp", "sit", "stand_up", "walk", "release")
+LocoVerb = Literal["zero_torque", "damp", "sit", "stand_up", "walk", "release"]
+
+
+class VelocityCommand(Message, frozen=True, tag="velocity_command", kw_only=True, forbid_unknown_fields=True):
+    """Walk: a body velocity for the walking controller (`zensim loco`), held until `timeout_s` of sim time
+    passes or the next command comes (latest wins). All zero: stop stepping and stand."""
+
+    vx: float = 0.0
+    """Forward velocity in the robot's heading frame, m/s."""
+    vy: float = 0.0
+    """Lateral velocity, left positive, m/s."""
+    wz: float = 0.0
+    """Yaw rate, counter-clockwise positive, rad/s."""
+    timeout_s: float = DEFAULT_VELOCITY_TIMEOUT_S
+    """Sim time after which the command lapses and the robot stops, s (0..864000)."""
+
+    def __post_init__(self) -> None:
+        _check_finite("velocity", (self.vx, self.vy, self.wz, self.timeout_s))
+        for name in ("vx", "vy", "wz"):
+            if abs(getattr(self, name)) > MAX_VELOCITY:
+                raise ValueError(f"`{name}` {getattr(self, name):.4g} is beyond +-{MAX_VELOCITY:g}: absurd for a walking robot")
+        if not 0.0 <= self.timeout_s <= MAX_VELOCITY_TIMEOUT_S:
+            raise ValueError(f"`timeout_s` must be in 0..{MAX_VELOCITY_TIMEOUT_S:g}, got {self.timeout_s:.4g}")
+
+
+class ArmCommand(Message, frozen=True, tag="arm_command", kw_only=True, forbid_unknown_fields=True):
+    """Upper-body targets blended over the walking controller's own (Unitree's rt/arm_sdk, forwarded by
+    `zensim unitree`): each named joint gets weight x this + (1 - weight) x the controller's. The newest holds."""
+
+    names: tuple[str, ...]
+    """Joints the vectors address (the walking controller's upper-body joints only)."""
+    weight: float
+    """Blend weight, 0 (the controller alone) .. 1 (these targets alone)."""
+    q: Vector
+    """Target positions, rad."""
+    dq: Vector
+    """Target velocities, rad/s."""
+    kp: Vector
+    """Position gains, N m/rad."""
+    kd: Vector
+    """Velocity gains, N m s/rad."""
+    tau: Vector
+    """Feed-forward torques, N m."""
+
+    def __post_init__(self) -> None:
+        _check_unique("names", self.names)
+        for field in ("q", "dq", "kp", "kd", "tau"):
+            _check_length(field, getattr(self, field), len(self.names), "names")
+            _check_finite(field, getattr(self, field))
+        _check_finite("weight", (self.weight,))
+        if not 0.0 <= self.weight <= 1.0:
+            raise ValueError(f"`weight` must be in 0..1, got {self.weight:.4g}")
+        _check_non_negative("kp", self.kp)
+        _check_non_negative("kd", self.kd)
+
+
+class LocoRequest(Message, frozen=True, tag="loco_request", kw_only=True, forbid_unknown_fields=True):
+    """A walking verb for `zensim loco` (ctl/loco); an empty request changes nothing and answers the state.
+
+    At most one of `verb` and `fsm_id`: a verb by name, or the sport service's FSM id as LocoClient sends it
+    (0 zero torque, 1 damp, 3 sit, 500 start: stand and walk, 702 lie-to-stand, 706 squat-to-stand, or
+    stand-to-squat while standing)."""
+
+    verb: LocoVerb | None = None
+    """zero_torque, damp (fold slowly), sit (to the squat), stand_up (to the stance, then balance), walk
+    (stand up if needed, then walk at the velocity commanded), release (stop sending: another controller
+    takes the motors)."""
+    fsm_id: int | None = None
+    """The sport service's FSM id; an id the controller does not run is refused."""
+    balance_mode: int | None = None
+    """LocoClient's balance mode, 0 or 1: stored and reported."""
+
+    def __post_init__(self) -> None:
+        if self.verb is not None and self.fsm_id is not None:
+            raise ValueError("give `verb` or `fsm_id`, not both")
+        if self.fsm_id is not None and not -(2**31) <= self.fsm_id < 2**31:
+            raise ValueError("`fsm_id` is an int32")
+        if self.balance_mode is not None and self.balance_mode not in (0, 1):
+            raise ValueError(f"`balance_mode` is 0 or 1, got {self.balance_mode}")
+
+
+class LocoStatus(Message, frozen=True, tag="loco_status", kw_only=True):
+    """The walking controller's state (state/loco, and the reply of ctl/loco)."""
+
+    seq: int = 0
+    """Counts up by one per published status."""
+    sim_time_s: float = 0.0
+    """Sim time of the newest state the controller saw, s."""
+    ok: bool = True
+    """In a ctl/loco reply: false when the request was refused (then `error` says why)."""
+    error: str | None = None
+    """Why the request was refused (a reply), or why the latest input was (a status)."""
+    active: bool = False
+    """True while the controller drives the robot (from the first verb until `release`)."""
+    fsm_id: int = 0
+    """The FSM state as the sport service numbers it (0, 1, 3, 500, 702, 706)."""
+    walking: bool = False
+    """The walking policy balances the robot (stepping, or ready to step on the next command)."""
+    stepping: bool = False
+    """The feet move: a non-zero velocity is in force (at zero the robot stands with both feet planted)."""
+    balance_mode: int = 0
+    """LocoClient's balance mode, as last set."""
+    commanded: Vector = (0.0, 0.0, 0.0)
+    """Velocity in force (vx m/s, vy m/s, wz rad/s), after clipping; zero once it lapsed."""
+    achieved: Vector = (0.0, 0.0, 0.0)
+    """The base's velocity in its heading frame (vx m/s, vy m/s, wz rad/s), from state/odom."""
+    command_left_s: float = 0.0
+    """Sim time until the velocity command lapses, s."""
+    velocity_limits: Vector = (0.0, 0.0, 0.0)
+    """Largest |vx| m/s, |vy| m/s, |wz| rad/s the controller walks at (commands are clipped to them)."""
+    velocity_received: int = 0
+    """Samples read on cmd/velocity, good or bad."""
+    velocity_refused: int = 0
+    """Of those, the ones refused whole (undecodable, oversize, NaN, absurd)."""
+    velocity_shed: int = 0
+    """Of those, the ones replaced unread by a newer one before the controller's next tick (latest wins)."""
+    requests: int = 0
+    """ctl/loco requests answered."""
+    requests_refused: int = 0
+    """Of those, the ones refused (undecodable, unknown FSM id, wildcard key)."""
+    arm_received: int = 0
+    """Samples read on cmd/arms."""
+    arm_refused: int = 0
+    """Of those, the ones refused whole (wrong joints, gains stiffer than the controller's, out of range)."""
+    commands_sent: int = 0
+    """MotorCommands put on cmd/motors."""
+    policy_steps: int = 0
+    """Steps of the walking policy run since start."""
+
+
+REMOTE_BUTTONS = ("R1", "L1", "Start", "Select", "R2", "L2", "F1", "F3", "A", "B", "X", "Y", "Up", "Right", "Down", "Left")
+"""The buttons of Unitree's wireless remote, in the bit order of LowState_.wireless_remote (bytes 2 and 3)."""
+RemoteButton = Literal["R1", "L1", "Start", "Select", "R2", "L2", "F1", "F3", "A", "B", "X", "Y", "Up", "Right",
+                       "Down", "Left"]
+
+
+class RemoteState(Message, frozen=True, tag="remote_state", kw_only=True, forbid_unknown_fields=True):
+    """Unitree's wireless remote as a person holds it (the viewer's keys or gamepad, any client): the buttons
+    pressed and the sticks. `zensim unitree` writes it into LowState_.wireless_remote in Unitree's byte layout;
+    the newest holds until the next."""
+
+    buttons: tuple[RemoteButton, ...] = ()
+    """Buttons held down."""
+    lx: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.0
+    """Left stick, right positive, -1..1."""
+    ly: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.0
+    """Left stick, forward positive, -1..1."""
+    rx: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.0
+    """Right stick, right positive, -1..1."""
+    ry: Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)] = 0.0
+    """Right stick, forward positive, -1..1."""
+
+    def __post_init__(self) -> None:
+        _check_finite("sticks", (self.lx, self.ly, self.rx, self.ry))
+        if len(set(self.buttons)) != len(self.buttons):
+            raise ValueError("`buttons` names a button more than once")
+
+
 WIRE_TYPES: tuple[type[Message], ...] = (
     JointState,
     Odometry,
@@ -834,5 +1012,10 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     WorldAdvanceRequest,
     WorldAdvanceReply,
     WorldInfo,
+    VelocityCommand,
+    ArmCommand,
+    LocoRequest,
+    LocoStatus,
+    RemoteState,
 )
 """Every top-level message type, in the order the docs list them."""

@@ -43,6 +43,11 @@ from .messages import (
     SimStatus,
     StepRequest,
     UnitreeStatus,
+    VelocityCommand,
+    ArmCommand,
+    LocoRequest,
+    LocoStatus,
+    RemoteState,
 )
 
 Kind = Literal["publication", "queryable", "liveliness"]
@@ -189,13 +194,28 @@ WORLD_INFO: Final = Topic("world/info", "queryable", "sim (a world)", "viz (`--w
                               "`?format=json` or a JSON query payload)", name="world_info")
 APPLIED: Final = Topic("state/applied", "publication", "sim", "anyone (the recorder, resim)",
                        "one per lockstep advance", AppliedCommand, name="applied")
+# --- walking: `zensim loco` ---------------------------------------------------------
+VELOCITY: Final = Topic("cmd/velocity", "publication", "any client, unitree (LocoClient), ros1 (/cmd_vel), viz (keys, gamepad)",
+                        "loco", "any; latest wins; lapses after `timeout_s` of sim time", VelocityCommand,
+                        note="(vx, vy m/s, wz rad/s in the heading frame)", name="velocity")
+ARMS: Final = Topic("cmd/arms", "publication", "unitree (rt/arm_sdk), any client", "loco", "any; the newest holds",
+                    ArmCommand, note="(upper-body targets blended over the walking controller's)", name="arms")
+CTL_LOCO: Final = Topic("ctl/loco", "queryable", "any client, unitree (the sport service)", "loco", "on demand",
+                        LocoRequest, LocoStatus, note="(stand up, sit, damp, walk: the sport service's FSM)",
+                        name="ctl_loco")
+LOCO_STATUS: Final = Topic("state/loco", "publication", "loco (the walking controller, services/loco/README.md)",
+                           "anyone (unitree, viz)", "`status_rate_hz`, default 10 Hz, and at each change",
+                           LocoStatus, note="(FSM state, commanded and achieved velocity)", name="loco_status")
+REMOTE: Final = Topic("cmd/remote", "publication", "viz (keys, gamepad), any client", "unitree (LowState_.wireless_remote)",
+                      "any; the newest holds", RemoteState, note="(Unitree's wireless remote: buttons, sticks)",
+                      name="remote")
 # --- description ------------------------------------------------------------------
 ROBOT_INFO: Final = Topic("info/robot", "queryable", "sim", "anyone", "on demand", RobotInfo,
                           note="(JSON for `?format=json` or a JSON query payload)", name="robot_info")
 URDF: Final[Topic[Message]] = Topic("info/urdf", "queryable", "sim", "anyone", "on demand", payload="URDF text (application/xml)", name="urdf")
 MESH: Final[Topic[Message]] = Topic("info/mesh/{path}", "queryable", "sim", "anyone", "on demand",
                     payload="mesh bytes (application/octet-stream)", name="mesh_any", wildcard="**")
-ALIVE: Final[Topic[Message]] = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree, ros1, ros2", "anyone",
+ALIVE: Final[Topic[Message]] = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree, ros1, ros2, loco", "anyone",
                      "while running", payload="token", name="alive_any")
 ROUTER_ALIVE: Final[Topic[Message]] = Topic("alive", "liveliness", "router (one token whatever its `--robot-id`)",
                                             "viz (the router badge of every robot), anyone", "while running",
@@ -208,6 +228,7 @@ TOPICS: Final[tuple[Topic, ...]] = (
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
     WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE, WORLD_INFO,
     ROBOT_INFO, URDF, MESH, ALIVE, ROUTER_ALIVE,
+    VELOCITY, ARMS, CTL_LOCO, LOCO_STATUS, REMOTE,
 )
 """Every topic, in the order the docs list them."""
 
@@ -259,8 +280,9 @@ ROLES: Final[tuple[Role, ...]] = (
     Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim", "alive/world")),
     Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
     Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info"), tokens=("alive/viz",)),
-    Role("unitree", "service", "the Unitree DDS adapter (and its locomotion controller)", publishes=("cmd/motors", "state/unitree"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/unitree",)),
-    Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
+    Role("unitree", "service", "the Unitree DDS adapter (its sport service forwards to `zensim loco`)", publishes=("cmd/motors", "state/unitree", "cmd/velocity", "cmd/arms"), subscribes=("state/**", "cmd/remote"), queries=("info/**", "ctl/loco"), tokens=("alive/unitree",)),
+    Role("loco", "service", "the walking controller", publishes=("cmd/motors", "state/loco"), subscribes=("state/**", "cmd/velocity", "cmd/arms"), serves=("ctl/loco",), queries=("info/**",), tokens=("alive/loco",)),
+    Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1", "cmd/velocity"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
     Role("ros2", "service", "the ROS 2 face (the bridge-facing side; its ROS 2 keys: docs/security.md)", publishes=("cmd/joints", "state/ros2"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros2",), ros2="write"),
     Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/**",)),
     Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/**",), tokens=("alive/sim", "alive/replay")),

@@ -34,7 +34,8 @@ def main() -> None:
         if name == "odommodestate":  # the newest SportModeState_, as the SDK's own type reads it
             m = latest[0] if latest else None
             result = None if m is None else {"position": list(m.position), "velocity": list(m.velocity),
-                                            "mode": m.mode, "sec": m.stamp.sec, "yaw": m.imu_state.rpy[2]}
+                                            "mode": m.mode, "sec": m.stamp.sec, "nanosec": m.stamp.nanosec,
+                                            "yaw": m.imu_state.rpy[2]}
         else:
             result = getattr(client, name)(*args)
         print(json.dumps({"result": result}), flush=True)

@@ -31,7 +31,7 @@ from zensim.schemas.topics import EVERY_ROLE_WATCHES, ROLE_USES, ROLES, Role, in
 
 AUDIT_DIR = Path(__file__).parent / "audit"
 SERVICE_ROLES = {"sim": "sim", "bridge": "bridge", "viz": "viz", "unitree": "unitree", "record": "recorder",
-                 "replay": "replay"}
+                 "replay": "replay", "loco": "loco"}
 """`zensim <command>` -> the role it runs with (services/*/__main__.py, zensim/record.py, replay.py)."""
 FIELD_OF_USE = {"publisher": "publishes", "subscriber": "subscribes", "queryable": "serves", "querier": "queries",
                 "token": "tokens"}
@@ -143,12 +143,13 @@ def test_every_service_declares_only_what_its_role_lists(start_service, zsession
     viz = start_service("viz", "--port", str(viz_port), env=env)
     adapter = start_service("unitree", "--domain-id", str(unused_domain_id()), "--interface", "lo", env=env)
     recorder = start_service("record", "-o", str(recording), env=env)
+    walking = start_service("loco", env=env)
 
     def alive() -> set[str]:
         replies = zsession.liveliness().get(keys.alive_any, timeout=1.0)
         return {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
 
-    wait_for(lambda: alive() >= {"sim", "bridge", "viz", "unitree"}, 120, "every service alive", 0.3)
+    wait_for(lambda: alive() >= {"sim", "bridge", "viz", "unitree", "loco"}, 120, "every service alive", 0.3)
     wait_for(lambda: "description of" in viz.log(), 60, "the viz to fetch the description")
     wait_for(lambda: "saved the sim's description" in recorder.log(), 60, "the recorder's description")
     for verb in ("pause", "resume"):  # the viz's querier on ctl/*
@@ -159,7 +160,7 @@ def test_every_service_declares_only_what_its_role_lists(start_service, zsession
     replay = start_service("replay", str(recording), "--robot-id", robot_id + "r", "--rate", "20", env=env)
     wait_for(lambda: replay.proc.poll() is not None, 60, "the replay to finish")
     assert replay.proc.returncode == 0, replay.log()
-    for service in (sim, bridge, viz, adapter):
+    for service in (sim, bridge, viz, adapter, walking):
         assert service.alive(), service.log()[-2000:]
         service.stop(15)
     # The lockstep clock's own keys (ctl/advance, state/applied), from a second sim.

@@ -10,6 +10,9 @@ import pytest
 
 from zensim.schemas import (
     WIRE_TYPES,
+    ArmCommand,
+    LocoRequest,
+    VelocityCommand,
     Codec,
     DecodeError,
     JointState,
@@ -67,6 +70,32 @@ SAMPLES["world_info"] = dict(world="lab", robots=[dict(robot="g1a", model="g1_29
 SAMPLES["ros1_status"] = dict(seq=4, master_uri="http://127.0.0.1:11311", master_up=True, joint_states_published=400,
                               joint_states_rate_hz=100.0, commands_received=5, commands_forwarded=3, rejected=2,
                               last_error="unknown joint 'tail'", mesh_url="http://127.0.0.1:7011")
+
+# Walking (issue 28).
+SAMPLES["velocity_command"] = dict(vx=0.4, vy=-0.1, wz=0.2, timeout_s=0.5)
+SAMPLES["arm_command"] = dict(names=["a", "b"], weight=0.5, q=[0.1, 0.2], dq=[0, 0], kp=[60, 60], kd=[1.5, 1.5],
+                              tau=[0, 0])
+SAMPLES["loco_request"] = dict(verb="walk")
+SAMPLES["remote_state"] = dict(buttons=["A", "Up"], lx=0.5, ly=-0.25, rx=0.0, ry=1.0)
+SAMPLES["loco_status"] = dict(seq=3, sim_time_s=4.2, active=True, fsm_id=500, walking=True, stepping=True,
+                              commanded=[0.4, 0.0, 0.0], achieved=[0.38, 0.01, 0.0], velocity_received=9)
+
+
+def test_walking_messages_refuse_what_no_robot_could_do() -> None:
+    """NaN, absurd speeds, impossible timeouts, verb and id together, weights beyond 0..1: refused on decode."""
+    velocity, request, arm = Codec(VelocityCommand), Codec(LocoRequest), Codec(ArmCommand)
+    for bad in ({"vx": 1e9}, {"wz": -11}, {"vx": 0.1, "timeout_s": -1}, {"timeout_s": 1e7}, {"v_x": 0.3}, {"vx": "1"}):
+        with pytest.raises(DecodeError):
+            velocity.decode(json.dumps(bad).encode(), "application/json")
+    with pytest.raises(DecodeError):
+        velocity.decode(msgspec.msgpack.encode({"vx": float("nan")}), "application/msgpack")
+    for bad in ({"verb": "fly"}, {"verb": "walk", "fsm_id": 500}, {"fsm_id": 2**40}, {"balance_mode": 2}, {"x": 1}):
+        with pytest.raises(DecodeError):
+            request.decode(json.dumps(bad).encode(), "application/json")
+    for change in ({"weight": 1.5}, {"kp": [-1, 0]}, {"q": [0.1]}, {"names": ["a", "a"]}):
+        with pytest.raises(DecodeError):
+            arm.decode(json.dumps({**SAMPLES["arm_command"], **change}).encode(), "application/json")
+    assert velocity.decode(b"{}", "application/json").timeout_s == 0.5  # a bare stop, lapsing by itself
 
 
 def tag(message_type: type) -> str:

@@ -206,6 +206,7 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         # Windows of sim time counted from before each call: under lockstep the sim runs on (several
         # times faster than the wall clock) while a request travels, so the robot walks at most 10 s.
         start = stack.odom.value
+        stack.odom.keep_history = True
         loco.call("Move", 0.3, 0, 0, True)  # continous_move: duration 864000 s
         stack.run_for(0.5)
         assert loco.call("odommodestate")["mode"] == 3  # walking
@@ -218,9 +219,15 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
               f"heading {yaw_of(walked.quat_wxyz) - yaw_of(start.quat_wxyz):+.3f} rad; {forward:.2f} m, {lateral:+.2f} m")
         assert 2.0 <= forward <= 4.0, (start.pos, walked.pos)
         assert abs(lateral) < 0.5, (start.pos, walked.pos)
-        # SportModeState_ read with the SDK's own type: the sim's ground truth.
+        # SportModeState_ read with the SDK's own type: the sim's ground truth at its stamp. (Under lockstep
+        # the walking controller, not the adapter, is the clock: sim time runs several times faster than
+        # the wall clock, so the newest SportModeState_ the SDK holds may be a second or two of sim time old.)
         state = loco.call("odommodestate")
-        assert state is not None and abs(state["position"][0] - stack.odom.value.pos[0]) < 0.3, state
+        assert state is not None
+        stamp = state["sec"] + state["nanosec"] * 1e-9
+        truth = min(stack.odom.history, key=lambda m: abs(m.sim_time_s - stamp))
+        assert abs(truth.sim_time_s - stamp) < 0.05 and abs(state["position"][0] - truth.pos[0]) < 0.05, (state, truth)
+        stack.odom.keep_history = False
         # Stands still after StopMove (the policy balances in place).
         settled = stack.run_for(1.0)
         later = stack.run_for(3.0)
@@ -386,6 +393,8 @@ def test_lockstep_walk_is_recorded_and_resimulates_to_zero(start_service, zsessi
     start_service("sim", "--clock", "lockstep")
     odom = Latest(zsession, keys.odom, Odometry)
     odom.wait(timeout_s=60, what="the initial state")
+    walking = start_service("loco")  # the walking controller: the sport service forwards to it
+    wait_for(lambda: "zensim loco up" in walking.log() or not walking.alive(), 60, "the walking controller to start")
     adapter = start_service("unitree", "--domain-id", str(domain), "--interface", "lo")
     wait_for(lambda: "unitree adapter up" in adapter.log() or not adapter.alive(), 60, "the adapter to start")
     path = tmp_path / "walk.mcap"
@@ -402,8 +411,8 @@ def test_lockstep_walk_is_recorded_and_resimulates_to_zero(start_service, zsessi
         loco.call("ZeroTorque")
     finally:
         loco.close()
-    adapter.signal(signal.SIGTERM)  # stop the clock: no more commands
-    adapter.proc.wait(15)
+    walking.signal(signal.SIGTERM)  # stop the clock: no more commands
+    walking.proc.wait(15)
     time.sleep(0.5)
     recorder.signal(signal.SIGTERM)
     assert recorder.proc.wait(15) == 0, recorder.log()
@@ -467,5 +476,83 @@ def test_bad_sport_requests_and_arm_sdk_samples_are_refused_counted_and_survived
         assert stack.up.poll() is None
         stack.unitree.wait(lambda u: u.policy_steps > before.policy_steps, 10, "the policy still stepping")
         assert "not applied" in stack.log_path.read_text()  # logged (rate-limited), not silent
+    finally:
+        loco.close()
+
+
+def test_a_sport_request_with_an_integer_past_float_is_refused_and_every_later_request_obeyed(lockstep_stack):
+    """Issue 27 item 1: `{"data": 1000...0}` (400 digits) killed the adapter's DDS thread (OverflowError);
+    the robot walked on, StopMove and Damp were ignored, and the status said all was well. Now it is a
+    3204 like any bad parameter, and the same thread goes on serving the calls after it."""
+    stack = lockstep_stack
+    loco = Loco(stack.domain, stack.tmp / "loco-huge.log")
+    try:
+        stand_up(stack, loco)
+        assert loco.call("Move", 0.3, 0, 0, True) is None  # walking, for 864000 s
+        stack.run_for(1.0)
+        huge = "1" + "0" * 400
+        assert loco.call("_CallBase", 7101, '{"data": %s}' % huge, 0, 0)[0] == 3204
+        assert loco.call("_CallBase", 7105, '{"velocity": [%s, 0, 0], "duration": 1}' % huge, 0, 0)[0] == 3204
+        assert loco.call("GetFsmId") == [0, 706]  # answered: the thread lives, nothing changed
+        assert loco.call("SetVelocity", 0.0, 0.0, 0.0) == 0  # StopMove
+        settled = stack.run_for(1.0)
+        later = stack.run_for(3.0)
+        assert math.dist(settled.pos[:2], later.pos[:2]) < 0.25, (settled.pos, later.pos)  # it stopped
+        loco.call("Damp")
+        folded = stack.run_for(3.0)
+        assert folded.pos[2] < later.pos[2] - 0.15, (later.pos, folded.pos)
+        status = stack.unitree.wait(lambda u: u.loco_fsm_id == 1, 10, "the status to say damp")
+        assert status.internal_errors == 0 and stack.up.poll() is None
+    finally:
+        loco.close()
+
+
+def test_one_absurd_arm_sdk_command_is_refused_alone_and_the_walk_goes_on(lockstep_stack):
+    """Issue 27 item 2: one rt/arm_sdk command with kp 1e6 (or q 1e30) at weight 1 was blended into every
+    command of the walk; the sim refused them all and the G1 fell. Now that command alone is refused
+    (counted) and the walk's commands go on being applied."""
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.topic import Topic
+
+    from unitree_sdk import low_cmd_crc, new_low_cmd
+    from zensim.unitree.idl import LowCmd_
+
+    stack = lockstep_stack
+    loco = Loco(stack.domain, stack.tmp / "loco-arm-bad.log")
+    try:
+        stand_up(stack, loco)
+        loco.call("Move", 0.3, 0, 0, True)
+        stack.run_for(0.5)
+        participant = stack.switcher.participant
+        writer = DataWriter(participant, Topic(participant, "rt/arm_sdk", LowCmd_))
+        stiff, far = new_low_cmd(), new_low_cmd()
+        for cmd in (stiff, far):
+            cmd.motor_cmd[29].q = 1.0  # full weight
+            cmd.motor_cmd[18].q, cmd.motor_cmd[18].kp, cmd.motor_cmd[18].kd = 0.3, 60.0, 1.5
+        stiff.motor_cmd[18].kp = 1e6
+        far.motor_cmd[18].q = 1e30
+        for cmd in (stiff, far):
+            cmd.crc = low_cmd_crc(cmd)
+        before = stack.unitree.wait(what="a status")
+        sim_before = stack.status.wait(what="the sim's status")
+        first_status = len(stack.status.history)
+
+        def taken() -> bool:  # a new writer's first samples may go before discovery matched it: resend
+            for cmd in (stiff, far):
+                writer.write(cmd)
+            status = stack.unitree.value
+            return status.arm_sdk_received - before.arm_sdk_received >= 2
+
+        wait_for(taken, 30, "the absurd arm_sdk commands read", 0.05)
+        start = stack.odom.value
+        walked = stack.run_for(3.0)
+        assert walked.pos[0] - start.pos[0] > 0.3, (start.pos, walked.pos)  # still walking
+        assert walked.pos[2] > 0.6 and not stack.fell_since(first_status), walked.pos
+        sim_after = stack.status.wait(lambda s: s.sim_time_s > walked.sim_time_s, 20, "a newer sim status")
+        assert sim_after.rejected_commands == sim_before.rejected_commands  # nothing poisoned reached the sim
+        after = stack.unitree.value
+        assert after.arm_sdk_rejected - before.arm_sdk_rejected >= 2  # refused, counted
+        assert after.arm_sdk_received - after.arm_sdk_rejected == before.arm_sdk_received - before.arm_sdk_rejected
+        loco.call("StopMove")
     finally:
         loco.close()

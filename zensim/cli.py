@@ -11,6 +11,7 @@
     zensim unitree  Unitree's DDS LowCmd/LowState for SDK controllers
     zensim ros1     the ROS 1 gateway: RViz, joint_state_publisher_gui, controller topics
     zensim ros2     the ROS 2 face: rmw_zenoh's keys on zensim's router, and DDS
+    zensim loco     the walking controller: cmd/velocity, ctl/loco (and the sport service, /cmd_vel)
     zensim record   record a robot's samples into MCAP; replay, resim: play or re-simulate one
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
@@ -38,13 +39,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "unitree": ("zensim.unitree.__main__", "run the Unitree DDS adapter (unitree_sdk2's rt/lowcmd, rt/lowstate)"),
     "ros1": ("zensim.ros1.__main__", "run the ROS 1 gateway (robot_description, joint states, controller topics)"),
     "ros2": ("zensim.ros2.__main__", "run the ROS 2 face (rmw_zenoh's keys and DDS: joint states, TF, commands)"),
+    "loco": ("zensim.loco.__main__", "run the walking controller (cmd/velocity, ctl/loco, state/loco)"),
     "record": ("zensim.record", "record every sample of a robot into an MCAP file"),
     "replay": ("zensim.replay", "publish a recording's states again (the viewer draws the past run)"),
     "resim": ("zensim.resim", "re-simulate a recording's commands and report the divergence"),
 }
 
 
-LONG_RUNNING = frozenset({"sim", "bridge", "viz", "router", "unitree", "ros1", "ros2"})
+LONG_RUNNING = frozenset({"sim", "bridge", "viz", "router", "unitree", "ros1", "ros2", "loco"})
 
 
 def usage() -> str:

@@ -1,6 +1,10 @@
 """`zensim up`: router, sim, bridge and viz as local processes, for a machine without Docker.
 
 `zensim up --unitree` runs the Unitree DDS adapter in place of the bridge (docs/unitree.md).
+`zensim up --loco` runs the walking controller (`zensim loco`) in place of the bridge, and `--unitree` runs
+it too (the sport service forwards to it): the bridge and the walking controller both command every
+motor, so one runs at a time. A robot without a walking controller: `zensim loco` says so and exits 0,
+and the rest run on.
 `zensim up --ros1` adds the ROS 1 gateway, and a `roscore` when none answers at ROS_MASTER_URI (docs/ros.md).
 `zensim up --ros2` adds the ROS 2 face (`zensim ros2`: rmw_zenoh's keys on the router, and DDS; docs/ros.md).
 
@@ -47,6 +51,8 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """Also run the web viewer."""
     unitree: bool = False
     """Run the Unitree DDS adapter (`zensim unitree`) in place of the bridge, with 500 Hz sim states: an SDK controller owns the motors."""
+    loco: bool = False
+    """Run the walking controller (`zensim loco`: cmd/velocity, ctl/loco) in place of the bridge; on with --unitree."""
     ros1: bool = False
     """Also run the ROS 1 gateway (`zensim ros1`), and `roscore` when no master answers at ROS_MASTER_URI."""
     ros2: bool = False
@@ -86,6 +92,10 @@ def settings_of(name: str) -> type[msgspec.Struct]:
         from zensim.ros2.settings import Ros2Settings
 
         return Ros2Settings
+    if name == "loco":
+        from zensim.loco.settings import LocoSettings
+
+        return LocoSettings
     from zensim.viz.settings import VizSettings
 
     return VizSettings
@@ -114,7 +124,7 @@ def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir
     return env
 
 
-BARE_FLAGS = ("--unitree", "--ros1", "--ros2")
+BARE_FLAGS = ("--unitree", "--ros1", "--ros2", "--loco")
 
 
 def _bare_unitree_flag(argv: Sequence[str] | None) -> list[str]:
@@ -189,7 +199,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if settings.secure_dir and not endpoint.startswith("tls/"):
         logger.error("with --secure-dir the router endpoint is tls/, not %s", endpoint)
         return 2
-    names = [name for name in SERVICES if name not in ("unitree", "ros1", "ros2") and (settings.viz or name != "viz")]
+    names = [name for name in SERVICES if name not in ("unitree", "ros1", "ros2", "loco") and (settings.viz or name != "viz")]
     roscore = None
     if settings.ros1:
         names.append("ros1")
@@ -198,11 +208,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         except OSError as exc:
             logger.error("--ros1: %s (install ROS 1: docs/ros.md)", exc)
             return 2
+    if settings.unitree or settings.loco:
+        # The bridge would command every motor at 100 Hz too: the SDK controller and the walking
+        # controller (which the sport service drives) command the motors instead.
+        names[names.index("bridge")] = "loco"
     if settings.ros2:
         names.append("ros2")
     if settings.unitree:
-        # The bridge would command every motor at 100 Hz too; the SDK controller is the one commander.
-        names[names.index("bridge")] = "unitree"
+        names.insert(names.index("loco") + 1, "unitree")
     procs: dict[str, subprocess.Popen] = {}
     stop = stop_on_signals()
     for name in names:
@@ -215,7 +228,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         logger.info("started %s (pid %d)", name, procs[name].pid)
     exit_code = 0
     while not stop.is_set():
-        dead = {name: p.returncode for name, p in procs.items() if p.poll() is not None}
+        # `zensim loco` exits 0 at once for a robot without a walking controller (it says so): not a failure.
+        dead = {name: p.returncode for name, p in procs.items()
+                if p.poll() is not None and not (name == "loco" and p.returncode == 0)}
         if dead:
             logger.error("service(s) exited: %s; stopping the rest", dead)
             exit_code = 1

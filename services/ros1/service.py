@@ -5,10 +5,11 @@ Reads:
     {robot}/state/sim          SimStatus: a new `run_id` is a restarted sim (perhaps another robot):
                                learn it again and set robot_description anew; a new `episode` is logged
     {robot}/info/robot, info/urdf, info/mesh/{path}   the robot, its URDF and meshes
-    ROS: the per-joint Float64 command topics and the GUI's JointState topic
+    ROS: the per-joint Float64 command topics and the GUI's JointState topic; /cmd_vel (Twist)
 Writes:
     {robot}/cmd/joint/{joint}  one per accepted Float64 (the bridge clamps and slew-limits it)
     {robot}/cmd/joints         JointTargets, one per accepted GUI message that moved a slider
+    {robot}/cmd/velocity       VelocityCommand, one per accepted /cmd_vel Twist (for `zensim loco`)
     {robot}/state/ros1         Ros1Status at status_rate_hz
     {robot}/alive/ros1         liveliness token, once the robot is known
     ROS: JointState, Odometry, Imu, TF, Clock; params robot_description and use_sim_time
@@ -31,7 +32,7 @@ from typing import Any
 import msgspec
 import rospy
 import zenoh
-from geometry_msgs.msg import TransformStamped
+from geometry_msgs.msg import TransformStamped, Twist
 from nav_msgs.msg import Odometry as RosOdometry
 from rosgraph_msgs.msg import Clock
 from rospy.impl.registration import Registration, get_registration_listeners, get_topic_manager
@@ -44,10 +45,11 @@ from zensim.common.logs import FORMAT, RateLimitedLog
 from zensim.common.robot_info import fetch_robot
 from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
-from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros1Status, SimStatus, encoding_of, topics
+from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros1Status, SimStatus, VelocityCommand,
+                            encoding_of, topics)
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
 
-from .mapping import GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, with_mesh_urls, xyzw
+from .mapping import GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, resolve, with_mesh_urls, xyzw
 from .meshserver import MeshServer
 from .settings import Ros1Settings
 
@@ -113,8 +115,11 @@ class Gateway:
         self._clock = rospy.Publisher(names.clock, Clock, queue_size=ROS_QUEUE)
         self._tf = rospy.Publisher(names.tf, TFMessage, queue_size=ROS_QUEUE)
         self._gui = rospy.Subscriber(names.gui, RosJointState, self._on_gui, queue_size=ROS_QUEUE)
+        self._cmd_vel_topic = resolve(names.namespace, settings.cmd_vel_topic)
+        self._cmd_vel = rospy.Subscriber(self._cmd_vel_topic, Twist, self._on_cmd_vel, queue_size=ROS_QUEUE)
         # Zenoh side.
         self._targets = TypedPublisher.of(session, keys, topics.JOINT_TARGETS)
+        self._velocity = TypedPublisher.of(session, keys, topics.VELOCITY)
         self._status = TypedPublisher.of(session, keys, topics.ROS1_STATUS)
         self._scalar_encoding = zenoh.Encoding(encoding_of("msgpack"))
         self._subscribers: list[zenoh.Subscriber] = []
@@ -295,6 +300,19 @@ class Gateway:
             self._targets.put(changed)
             self._forwarded()
 
+    def _on_cmd_vel(self, message: Twist) -> None:
+        """The classic /cmd_vel: linear x, y and angular z to the walking controller (`zensim loco`)."""
+        with self._lock:
+            self.counters.commands_received += 1
+        try:
+            command = VelocityCommand(vx=message.linear.x, vy=message.linear.y, wz=message.angular.z,
+                                      timeout_s=self._settings.cmd_vel_timeout_s)
+        except (ValueError, TypeError) as exc:  # NaN, absurd: the schema's own checks
+            self.refusals.refuse(self._cmd_vel_topic, str(exc))
+            return
+        self._velocity.put(command)
+        self._forwarded()
+
     # --- the master ------------------------------------------------------------------------------
 
     def watch_master(self, stop: threading.Event) -> None:
@@ -359,6 +377,7 @@ class Gateway:
         for subscriber in self._subscribers:
             subscriber.undeclare()
         self._targets.undeclare()
+        self._velocity.undeclare()
         self._status.undeclare()
 
 

@@ -29,6 +29,10 @@ class Ros1Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     """std_msgs/Float64 in, one topic per movable joint (`{joint}` is the joint's name)."""
     gui_topic: str = "/gui_commands"
     """sensor_msgs/JointState in (joint_state_publisher_gui remapped): the named joints' positions."""
+    cmd_vel_topic: str = "/cmd_vel"
+    """geometry_msgs/Twist in: linear x, y and angular z to the walking controller (cmd/velocity, `zensim loco`)."""
+    cmd_vel_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=60)] = 0.5
+    """Sim time each /cmd_vel holds: the robot stops this long after the last one (`rostopic pub -r 10`)."""
     odom_topic: str = "/ground_truth_odom"
     """nav_msgs/Odometry out, the base's ground truth (like Gazebo's p3d plugin)."""
     imu_topic: str = "imu"

@@ -8,7 +8,8 @@
 The domain is configured as the SDK's `ChannelFactoryInitialize(domain, interface)` does it:
 an XML config naming the network interface (Cyclone DDS turns multicast off on `lo` and finds
 local participants by unicast). QoS is Cyclone's default on both sides, as in the SDK, except
-rt/lowcmd's reader history (LOWCMD_HISTORY), which only the reader sees. On a loopback interface
+rt/lowcmd's reader history (LOWCMD_HISTORY) and the request readers' (requests.py's REQUEST_HISTORY),
+which only the readers see. On a loopback interface
 the participant's sockets are tied to it (common/ddsbind.py: Cyclone binds them to 0.0.0.0), and Cyclone's
 own log lines go through a rate limiter (common/ddslog.py).
 
@@ -34,9 +35,12 @@ from cyclonedds.util import duration
 from zensim.common.ddsbind import is_loopback, pin_to_device, udp_sockets
 from zensim.common.ddslog import route_cyclone_log
 from .idl import LowCmd_, LowState_, Request_, Response_
+from .requests import REQUEST_HISTORY
 
 LOWCMD_TOPIC = "rt/lowcmd"
 LOWSTATE_TOPIC = "rt/lowstate"
+LOWSTATE_LF_TOPIC = "rt/lf/lowstate"
+"""The low-frequency copy of LowState_ the robot also publishes (Unitree's wireless_controller example reads it)."""
 MOTION_SWITCHER_REQUEST = "rt/api/motion_switcher/request"
 MOTION_SWITCHER_RESPONSE = "rt/api/motion_switcher/response"
 
@@ -46,6 +50,14 @@ LOWCMD_HISTORY = 32
 """LowCmd_ samples rt/lowcmd's reader keeps until they are taken (Cyclone's default keeps 1 and replaces it
 unseen). The adapter applies the newest of each take and counts the rest as shed; a flood faster than
 this many samples per take (32 kHz at 1 ms takes) also loses older samples in Cyclone's cache, uncounted."""
+
+
+def take_serialized(reader: DataReader, max_samples: int) -> list[bytes]:
+    """Up to `max_samples` samples of `reader`, serialized (header included), oldest first; none decoded."""
+    result = ddspy_take(reader._ref, max_samples)
+    if isinstance(result, int):
+        return []
+    return [data for data, info in result if info.valid_data]
 
 
 def domain_config(interface: str) -> str:
@@ -85,7 +97,9 @@ class UnitreeDds:
         self.lowcmd_reader = DataReader(self.participant, Topic(self.participant, LOWCMD_TOPIC, LowCmd_),
                                         qos=Qos(Policy.History.KeepLast(LOWCMD_HISTORY)))
         self.lowstate_writer = DataWriter(self.participant, Topic(self.participant, LOWSTATE_TOPIC, LowState_))
-        self.request_reader = DataReader(self.participant, Topic(self.participant, MOTION_SWITCHER_REQUEST, Request_))
+        self.lowstate_lf_writer = DataWriter(self.participant, Topic(self.participant, LOWSTATE_LF_TOPIC, LowState_))
+        self.request_reader = DataReader(self.participant, Topic(self.participant, MOTION_SWITCHER_REQUEST, Request_),
+                                         qos=Qos(Policy.History.KeepLast(REQUEST_HISTORY)))
         self.response_writer = DataWriter(self.participant, Topic(self.participant, MOTION_SWITCHER_RESPONSE, Response_))
         mask = SampleState.NotRead | ViewState.Any | InstanceState.Any
         self.lowcmd_ready = ReadCondition(self.lowcmd_reader, mask)
@@ -103,10 +117,7 @@ class UnitreeDds:
 
     def take_lowcmd(self, max_samples: int = LOWCMD_HISTORY) -> list[bytes]:
         """Serialized LowCmd_ samples that arrived (header included), oldest first."""
-        result = ddspy_take(self.lowcmd_reader._ref, max_samples)
-        if isinstance(result, int):
-            return []
-        return [data for data, info in result if info.valid_data]
+        return take_serialized(self.lowcmd_reader, max_samples)
 
     def write_lowstate(self, data: bytes) -> None:
         """Publish one serialized LowState_ (codec.encode_low_state)."""
@@ -114,14 +125,15 @@ class UnitreeDds:
         if ret < 0:
             raise OSError(f"dds_write on {LOWSTATE_TOPIC} failed with {ret}")
 
-    def take_request(self) -> Request_ | None:
-        """The next motion-switcher request (decoded by the binding; low rate).
+    def write_lowstate_lf(self, data: bytes) -> None:
+        """Publish one serialized LowState_ on the low-frequency topic."""
+        ret = ddspy_write(self.lowstate_lf_writer._ref, data)
+        if ret < 0:
+            raise OSError(f"dds_write on {LOWSTATE_LF_TOPIC} failed with {ret}")
 
-        Raises:
-            Exception: whatever the binding raises on a sample it cannot decode.
-        """
-        samples = self.request_reader.take(N=1)
-        return samples[0] if samples and isinstance(samples[0], Request_) else None
+    def take_requests(self) -> list[bytes]:
+        """Every waiting motion-switcher request, serialized (requests.py decodes those it answers)."""
+        return take_serialized(self.request_reader, REQUEST_HISTORY)
 
     def has_request(self) -> bool:
         return bool(self.request_ready.triggered)

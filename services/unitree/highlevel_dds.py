@@ -17,14 +17,15 @@ from __future__ import annotations
 import struct
 from typing import Final
 
-from cyclonedds._clayer import ddspy_take, ddspy_write
-from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
+from cyclonedds._clayer import ddspy_write
+from cyclonedds.core import InstanceState, Policy, Qos, ReadCondition, SampleState, ViewState
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
-from .dds import UnitreeDds
+from .dds import UnitreeDds, take_serialized
 from .idl import LowCmd_, Request_, Response_, SportModeState_
+from .requests import REQUEST_HISTORY
 
 SPORT_REQUEST = "rt/api/sport/request"
 SPORT_RESPONSE = "rt/api/sport/response"
@@ -56,7 +57,8 @@ class HighLevelDds:
 
     def __init__(self, dds: UnitreeDds) -> None:
         participant = dds.participant
-        self.request_reader = DataReader(participant, Topic(participant, SPORT_REQUEST, Request_))
+        self.request_reader = DataReader(participant, Topic(participant, SPORT_REQUEST, Request_),
+                                         qos=Qos(Policy.History.KeepLast(REQUEST_HISTORY)))
         self.response_writer = DataWriter(participant, Topic(participant, SPORT_RESPONSE, Response_))
         self.arm_sdk_reader = DataReader(participant, Topic(participant, ARM_SDK_TOPIC, LowCmd_))
         self.odom_writer = DataWriter(participant, Topic(participant, ODOM_STATE_TOPIC, SportModeState_))
@@ -73,24 +75,16 @@ class HighLevelDds:
     def has_arm_sdk(self) -> bool:
         return bool(self.arm_sdk_ready.triggered)
 
-    def take_request(self) -> Request_ | None:
-        """The next sport request (decoded by the binding).
-
-        Raises:
-            Exception: whatever the binding raises on a sample it cannot decode.
-        """
-        samples = self.request_reader.take(N=1)
-        return samples[0] if samples and isinstance(samples[0], Request_) else None
+    def take_requests(self) -> list[bytes]:
+        """Every waiting sport request, serialized (requests.py decodes those it answers)."""
+        return take_serialized(self.request_reader, REQUEST_HISTORY)
 
     def respond(self, response: Response_) -> None:
         self.response_writer.write(response)
 
     def take_arm_sdk(self, max_samples: int = 64) -> list[bytes]:
         """Serialized LowCmd_ samples from rt/arm_sdk (header included), oldest first."""
-        result = ddspy_take(self.arm_sdk_reader._ref, max_samples)
-        if isinstance(result, int):
-            return []
-        return [data for data, info in result if info.valid_data]
+        return take_serialized(self.arm_sdk_reader, max_samples)
 
     def write_odom(self, state: SportModeState_, low_frequency: bool) -> None:
         data = encode_sport_mode_state(state)

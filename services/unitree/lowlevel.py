@@ -14,18 +14,21 @@ value or a negative gain rejects the whole command.
 
 JointState + Imu -> LowState_: tick is the sim time in ms, the IMU's quaternion, gyro and
 accelerometer with roll/pitch/yaw derived from the quaternion, per motor q, dq and tau_est
-(the torque applied in the last step). Fields the sim does not model stay 0.
+(the torque applied in the last step), and `wireless_remote` from the newest RemoteState (cmd/remote) in
+the remote's byte layout (`wireless_remote`). Fields the sim does not model stay 0.
 """
 
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
 
-from zensim.schemas import Imu, JointState, MotorCommand
+from zensim.schemas import Imu, JointState, MotorCommand, RemoteState
+from zensim.schemas.messages import REMOTE_BUTTONS
 
 from .codec import NUM_MOTORS, LowCmd, encode_low_state, new_low_state
 
@@ -93,6 +96,23 @@ def rpy_from_wxyz(w: float, x: float, y: float, z: float) -> tuple[float, float,
     return roll, pitch, yaw
 
 
+WIRELESS_REMOTE_BYTES: Final = 40
+REMOTE_STICKS: Final = struct.Struct("<5f")
+"""Bytes 4..23 of the remote: lx, rx, ry, L2 (analog, unused by the G1 programs), ly, little-endian float32."""
+
+
+def wireless_remote(remote: RemoteState) -> bytes:
+    """LowState_.wireless_remote for a remote state, in Unitree's layout (unitree_sdk2's
+    `example/wireless_controller`): bytes 0-1 a header (0), bytes 2 and 3 the button bits in REMOTE_BUTTONS
+    order (R1 is bit 0 of byte 2, A bit 0 of byte 3), then the sticks (REMOTE_STICKS), the rest 0."""
+    bits = 0
+    for name in remote.buttons:
+        bits |= 1 << REMOTE_BUTTONS.index(name)
+    l2 = 1.0 if "L2" in remote.buttons else 0.0
+    data = bytes(2) + bytes((bits & 0xFF, bits >> 8)) + REMOTE_STICKS.pack(remote.lx, remote.rx, remote.ry, l2, remote.ly)
+    return data + bytes(WIRELESS_REMOTE_BYTES - len(data))
+
+
 class LowStateBuilder:
     """Pairs the sim's JointState and Imu of one instant into a serialized LowState_.
 
@@ -116,6 +136,8 @@ class LowStateBuilder:
         self._done_seq = -1
         self.mode_pr = MODE_PR
         """Echoed in LowState_.mode_pr: the mode of the last accepted command."""
+        self.remote = bytes(WIRELESS_REMOTE_BYTES)
+        """LowState_.wireless_remote (`wireless_remote`), from the newest cmd/remote."""
 
     def joints(self, message: JointState) -> bytes | None:
         """Take a JointState; returns the LowState_ when the pair is complete."""
@@ -154,4 +176,5 @@ class LowStateBuilder:
         motors["q"][: self._n] = joints.q
         motors["dq"][: self._n] = joints.dq
         motors["tau_est"][: self._n] = joints.tau
+        state["wireless_remote"] = np.frombuffer(self.remote, np.uint8)
         return encode_low_state(state)

@@ -6,15 +6,17 @@ Reads:
     {robot}/state/joints, state/imu   JointState + Imu of one instant -> one LowState_
     {robot}/info/robot                RobotInfo, queried at start and after a sim restart (the joint order)
     {robot}/state/sim                 SimStatus: a new `run_id` means a new sim, perhaps another robot
+    {robot}/cmd/remote                RemoteState: Unitree's wireless remote, into LowState_.wireless_remote
 Writes:
     rt/lowstate (DDS)                 LowState_, one per sim state (500 Hz sim states: 500 Hz LowState_)
+    rt/lf/lowstate (DDS)              the same LowState_ every 20 ms of sim time (the low-frequency copy)
     rt/api/motion_switcher/response   Response_
     {robot}/cmd/motors                MotorCommand, every joint, one per accepted LowCmd_
     {robot}/state/unitree             UnitreeStatus at status_rate_hz
     {robot}/alive/unitree             liveliness token, once the robot is known
 The G1's high-level API (highlevel.py: rt/api/sport/*, rt/arm_sdk, rt/odommodestate) shares the
-participant, the DDS thread and the cmd/motors publisher; its locomotion controller ticks on the
-state pairs that make LowState_.
+participant and the DDS thread; it forwards to the walking controller, `zensim loco` (ctl/loco,
+cmd/velocity, cmd/arms; its state on state/loco).
 
 A DDS thread waits on both DDS readers; one zenoh callback thread (one subscriber on `state/*`)
 builds LowState_. Nothing queues: a LowCmd_ is forwarded as soon as it is read, a LowState_ written
@@ -46,6 +48,7 @@ import logging
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import zenoh
@@ -53,8 +56,9 @@ import zenoh
 from zensim.common.logs import RateLimitedLog
 from zensim.common.robot_info import fetch_robot
 from zensim.common.wire import TypedPublisher, decode_input
-from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, RobotInfo, SimStatus, UnitreeStatus, bounded, topics
-from zensim.schemas.bounds import vector_cap_bytes
+from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, RemoteState, RobotInfo, SimStatus, UnitreeStatus, bounded,
+                            topics)
+from zensim.schemas.bounds import MIN_CAP_BYTES, vector_cap_bytes
 
 from . import switcher
 from .codec import NUM_MOTORS, CodecError, decode_low_cmd
@@ -62,7 +66,8 @@ from .dds import UnitreeDds
 from .highlevel import HighLevel
 from .highlevel_dds import HighLevelDds
 from .idl import RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_
-from .lowlevel import LowCmdError, LowStateBuilder, motor_command
+from .lowlevel import LowCmdError, LowStateBuilder, motor_command, wireless_remote
+from .requests import REQUESTS_PER_S, RequestBudget
 from .settings import UnitreeSettings
 
 logger = logging.getLogger("zensim.unitree")
@@ -72,6 +77,8 @@ DDS_WAIT_S = 0.1
 LOWCMD_TAKE_PERIOD_S = 0.001
 """Shortest wall time between two takes of rt/lowcmd. A controller at 500 Hz or 1 kHz (the SDK's
 examples) sends slower than this and never waits; a faster one has its older samples shed."""
+LOWSTATE_LF_PERIOD_S = 0.02
+"""rt/lf/lowstate, the low-frequency copy of LowState_: one per 20 ms of sim time (50 Hz)."""
 GIL_SWITCH_INTERVAL_S = 0.0002
 """Longest a thread that wakes up waits for the GIL while another holds it (CPython default: 5 ms)."""
 
@@ -105,6 +112,10 @@ class Counters:
         self.ab_mode_commands = 0
         self.lowstate_published = 0
         self.motion_switcher_requests = 0
+        self.requests_shed = 0
+        self.internal_errors = 0
+        """Inputs whose handling raised an error nobody foresaw (a bug): counted, logged, survived."""
+        self.remote_rejected = 0
         self.sim_time_s = 0.0
         self.last_command: float | None = None  # monotonic time of the newest forwarded LowCmd_
         self.last_error: str | None = None
@@ -132,19 +143,24 @@ class UnitreeAdapter:
         self._reject_log = RateLimitedLog(logger, 1.0)
         self._request_log = RateLimitedLog(logger, 1.0)
         self._state_log = RateLimitedLog(logger, 5.0)
+        self._shed_log = RateLimitedLog(logger, 1.0)
+        self._error_log = RateLimitedLog(logger, 1.0)
+        self._budget = RequestBudget()
         self._ab_logged = False
         self._motors = TypedPublisher.of(session, keys, topics.MOTORS)
         self._status = TypedPublisher.of(session, keys, topics.UNITREE_STATUS)
-        # The sport service, arm_sdk and SportModeState_ (highlevel.py): its controller's commands go
-        # out on the same cmd/motors publisher as forwarded LowCmd_.
         self._motors_lock = threading.Lock()
-        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._put_motors, self._cap_bytes)
+        # The sport service, arm_sdk and SportModeState_ (highlevel.py): forwarded to `zensim loco`.
+        self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._cap_bytes, self._budget)
         self.highlevel.adopt(robot.joint_names, self._cap_bytes)
         # One subscriber, so one callback thread, for the sim's states: see the module docstring.
         # Other state/* keys (odom, the adapter's own status) are dropped by the key lookup.
         self._state_routes = {keys.joints: self._on_joints, keys.imu: self._on_imu,
                               keys.sim_status: self._on_sim_status}
-        self._subscribers = [session.declare_subscriber(f"{keys.root}/state/*", self._on_any_state)]
+        self._remote_codec = Codec(RemoteState)
+        self._next_lf_s: float | None = None
+        self._subscribers = [session.declare_subscriber(f"{keys.root}/state/*", self._on_any_state),
+                             session.declare_subscriber(keys.remote, self._on_remote)]
 
     def adopt(self, robot: Robot) -> None:
         """Take `robot` (at start, and after a sim restart): its joint order is the motor order."""
@@ -193,6 +209,8 @@ class UnitreeAdapter:
                     return
                 self._written = order
                 self._dds.write_lowstate(data)
+                if self._lf_due(message.sim_time_s):
+                    self._dds.write_lowstate_lf(data)
             with self._lock:
                 self.counters.lowstate_published += 1
                 self.counters.sim_time_s = message.sim_time_s
@@ -201,7 +219,27 @@ class UnitreeAdapter:
             self._state_log.warning("cannot turn state/%s into LowState_: %s", which, exc)
             return
         if pair is not None and self.highlevel is not None:
-            self.highlevel.on_state(*pair)  # the locomotion controller ticks on the sim's states
+            self.highlevel.on_state(*pair)  # SportModeState_ at its rate
+
+    def _lf_due(self, now_s: float) -> bool:
+        """Whether this LowState_ also goes out on rt/lf/lowstate: every LOWSTATE_LF_PERIOD_S of sim time
+        (sim time going back, a reset, starts the schedule over). Called under `_write_lock`."""
+        due = self._next_lf_s is None or now_s >= self._next_lf_s - 1e-9 or now_s < self._next_lf_s - 2 * LOWSTATE_LF_PERIOD_S
+        if due:
+            self._next_lf_s = now_s + LOWSTATE_LF_PERIOD_S
+        return due
+
+    def _on_remote(self, sample: zenoh.Sample) -> None:
+        """cmd/remote: the newest remote state goes into every LowState_ after it (wireless_remote)."""
+        try:
+            remote = wireless_remote(decode_input(sample, self._remote_codec, MIN_CAP_BYTES))
+        except DecodeError as exc:
+            with self._lock:
+                self.counters.remote_rejected += 1
+            self._reject_log.warning("RemoteState on cmd/remote not applied: %s", exc)
+            return
+        with self._lock:
+            self._builder.remote = remote
 
     # --- DDS -> zensim (the DDS thread) --------------------------------------------
 
@@ -250,25 +288,25 @@ class UnitreeAdapter:
         self._put_motors(command.command)
 
     def _put_motors(self, command) -> None:  # noqa: ANN001
-        """cmd/motors from the DDS thread (LowCmd_) or a state callback (the locomotion controller):
-        one zenoh publisher, used by one thread at a time."""
+        """cmd/motors from the DDS thread (LowCmd_): one zenoh publisher, used by one thread at a time."""
         with self._motors_lock:
             self._motors.put(command)
 
     def handle_requests(self) -> None:
-        """Answer every waiting motion-switcher request."""
-        while True:
-            try:
-                request = self._dds.take_request()
-            except Exception as exc:  # the binding raises assorted errors on an undecodable sample
-                # The sample is taken (gone) either way; the rest wait for the next wake-up, so a
-                # reader that keeps failing cannot spin this thread.
-                self._reject_log.warning("undecodable motion-switcher request: %s", bounded(str(exc)))
-                return
-            if request is None:
-                return
+        """Take every waiting motion-switcher request; answer those the budget admits (requests.py)."""
+        intake = self._budget.admit(self._dds.take_requests())
+        with self._lock:
+            self.counters.requests_shed += intake.shed
+        if intake.shed:
+            self._shed_log.warning("motion switcher: %d request(s) shed unanswered (more than %g a second come in)",
+                                   intake.shed, REQUESTS_PER_S)
+        for why in intake.undecodable:
+            self._reject_log.warning("undecodable motion-switcher request: %s", why)
+        for request in intake.requests:
             identity = request.header.identity
-            code, data = switcher.answer(identity.api_id, self.highlevel is not None and self.highlevel.active())
+            # Only CheckMode needs to know (a question to the walking controller over Zenoh).
+            highlevel = self.highlevel if identity.api_id == switcher.API_ID_CHECK_MODE else None
+            code, data = switcher.answer(identity.api_id, highlevel is not None and highlevel.active())
             if identity.api_id == switcher.API_ID_RELEASE_MODE and self.highlevel is not None:
                 self.highlevel.release()  # a low-level program takes the robot from the sport service
             with self._lock:
@@ -283,22 +321,40 @@ class UnitreeAdapter:
             ))
 
     def dds_loop(self, stop: threading.Event) -> None:
-        """The DDS thread: wait for samples, handle them, until `stop`."""
+        """The DDS thread: wait for samples, handle them, until `stop`.
+
+        It wakes at most once per LOWCMD_TAKE_PERIOD_S whatever comes in (a flood on any reader piles
+        up in that reader meanwhile and is taken in one go), and each reader's handling is guarded: an
+        error nobody foresaw is counted (internal_errors), logged with its traceback at a bounded rate,
+        and the thread goes on serving the others.
+        """
         next_take = 0.0
         while not stop.is_set():
             self._dds.wait(DDS_WAIT_S)
+            wait_s = next_take - time.monotonic()
+            if wait_s > 0:
+                time.sleep(wait_s)  # at most LOWCMD_TAKE_PERIOD_S: a flood's samples pile up meanwhile
+            next_take = time.monotonic() + LOWCMD_TAKE_PERIOD_S
             if self._dds.has_lowcmd():
-                wait_s = next_take - time.monotonic()
-                if wait_s > 0:
-                    time.sleep(wait_s)  # at most LOWCMD_TAKE_PERIOD_S: a flood's samples pile up meanwhile
-                next_take = time.monotonic() + LOWCMD_TAKE_PERIOD_S
-                samples = self._dds.take_lowcmd()
-                if samples:  # latest wins: the older ones would be overwritten before a physics step
-                    self.handle_lowcmd(samples[-1], shed=len(samples) - 1)
+                self._guarded("rt/lowcmd", self._take_lowcmd)
             if self._dds.has_request():
-                self.handle_requests()
+                self._guarded("rt/api/motion_switcher/request", self.handle_requests)
             if self.highlevel is not None:
-                self.highlevel.poll()
+                self._guarded("the sport service or rt/arm_sdk", self.highlevel.poll)
+
+    def _take_lowcmd(self) -> None:
+        samples = self._dds.take_lowcmd()
+        if samples:  # latest wins: the older ones would be overwritten before a physics step
+            self.handle_lowcmd(samples[-1], shed=len(samples) - 1)
+
+    def _guarded(self, what: str, handle: Callable[[], None]) -> None:
+        try:
+            handle()
+        except Exception as exc:
+            with self._lock:
+                self.counters.internal_errors += 1
+                self.counters.last_error = bounded(f"{what}: {type(exc).__name__}: {exc}")
+            self._error_log.exception("handling %s failed (counted in internal_errors; the DDS thread goes on)", what)
 
     # --- status ----------------------------------------------------------------------
 
@@ -308,6 +364,7 @@ class UnitreeAdapter:
             return self.counters.lowstate_published
 
     def publish_status(self, seq: int, rate_hz: float) -> None:
+        highlevel = self.highlevel.status_fields() if self.highlevel is not None else {}
         with self._lock:
             c = self.counters
             status = UnitreeStatus(
@@ -318,8 +375,9 @@ class UnitreeAdapter:
                 lowstate_published=c.lowstate_published, lowstate_rate_hz=rate_hz,
                 motion_switcher_requests=c.motion_switcher_requests, sim_time_s=c.sim_time_s,
                 command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
-                last_error=c.last_error,
-                **(self.highlevel.status_fields() if self.highlevel is not None else {}),
+                last_error=c.last_error, remote_rejected=c.remote_rejected,
+                **dict(highlevel, requests_shed=c.requests_shed + highlevel.get("requests_shed", 0),
+                       internal_errors=c.internal_errors + highlevel.get("internal_errors", 0)),
             )
         self._status.put(status)
 
@@ -346,7 +404,7 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     dds = UnitreeDds(settings.domain_id, settings.interface)
     adapter = UnitreeAdapter(session, keys, robot, settings, dds)
-    dds_thread = threading.Thread(target=adapter.dds_loop, args=(stop,), name="dds", daemon=True)
+    dds_thread = threading.Thread(target=adapter.dds_loop, args=(stop,), name="dds", daemon=True)  # its death: below
     dds_thread.start()
     token = session.liveliness().declare_token(keys.alive("unitree"))
     logger.info("unitree adapter up: %d motors <-> %s; DDS domain %d on %s", len(robot.joint_names), keys.root,
@@ -354,8 +412,16 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
     period_s = 1.0 / settings.status_rate_hz
     seq = 0
     last_count, last_time = 0, time.monotonic()
+    code = 0
     try:
         while not stop.wait(period_s):
+            if not dds_thread.is_alive():
+                # Health must be true: without its DDS thread the adapter reads no command, request or
+                # release, so it stops rather than keep a token and a status that say all is well.
+                logger.error("the DDS thread ended (see the error above): rt/lowcmd, the sport service and "
+                             "arm_sdk are no longer read; exiting")
+                code = 1
+                break
             if adapter.sim_restarted.is_set():
                 robot = fetch_robot(session, keys, settings.info_timeout_s, stop, Robot.from_info, logger)
                 if robot is None:
@@ -375,4 +441,4 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
     logger.info("%d LowCmd_ read, %d forwarded, %d shed, %d crc errors, %d rejected; %d LowState_ written",
                 c.lowcmd_received, c.lowcmd_forwarded, c.lowcmd_shed, c.crc_errors, c.rejected,
                 c.lowstate_published)
-    return 0
+    return code

@@ -1,10 +1,11 @@
-"""The G1 locomotion controller (services/unitree/loco.py) in-process with the sim's physics: walk figures
-and the cost of one policy step. No network: the same controller and Simulation the services run.
+"""The G1 walking controller (zensim loco: services/loco/controller.py) in-process with the sim's physics:
+walk figures and the cost of one policy step. No network: the same controller and Simulation the services run.
 
-    .venv/bin/python benchmarks/unitree_loco.py
+    .venv/bin/python benchmarks/loco_walk.py
 
 Squat-to-stand, Move(0.3, 0, 0) for 10 s of sim time, stop, Move(0, 0, 0.3) for 5 s: distance, lateral
-drift, heading change, drift at standstill; then the mean cost of WalkPolicy.act (numpy LSTM + MLP).
+drift, heading change, drift at standstill (1 s after the stop, over 5 s); then the mean cost of
+WalkPolicy.act (numpy LSTM + MLP).
 """
 
 from __future__ import annotations
@@ -14,11 +15,12 @@ import time
 
 import numpy as np
 
+from zensim.loco.controller import LocoController
+from zensim.loco.walk_policy import NUM_OBS, WalkPolicy, load_weights
 from zensim.robots import robot_files
+from zensim.robots.walking import walking_for
 from zensim.schemas import MotorCommand
 from zensim.sim.physics import Limits, Simulation
-from zensim.unitree.loco import LocoController
-from zensim.unitree.walk_policy import NUM_OBS, WalkPolicy
 
 
 def yaw_of(quat_wxyz) -> float:
@@ -29,7 +31,10 @@ def yaw_of(quat_wxyz) -> float:
 def main() -> None:
     sim = Simulation(robot_files("g1"), "floating", Limits(5000, 500), 1e9)
     sim.watchdog_enabled = False
-    ctl = LocoController()
+    found = walking_for(tuple(sim.robot.joint_names))
+    assert found is not None
+    walking = found[1]
+    ctl = LocoController(walking)
     fell = False
 
     def run(seconds: float):  # noqa: ANN202
@@ -52,16 +57,29 @@ def main() -> None:
     walked = run(10.0)
     ctl.set_velocity(0, 0, 0, 0, sim.sim_time_s)
     settled = run(1.0)
-    still = run(3.0)
+    planted_at = None
+    still = settled
+    for _ in range(20):  # 0.1 s at a time: when the controller stops stepping, and 1 s later
+        still = run(0.1)
+        if planted_at is None and ctl.state.planted:
+            planted_at = sim.sim_time_s
+    stood = run(1.0)
+    stood_later = run(5.0)
+    still = stood_later
+    since_stop = math.dist(settled.pos[:2], stood_later.pos[:2])
+    since_span = stood_later.sim_time_s - settled.sim_time_s
     ctl.set_velocity(0, 0, 0.3, 864000, sim.sim_time_s)
     turned = run(5.0)
     heading = (yaw_of(turned.quat_wxyz) - yaw_of(still.quat_wxyz) + math.pi) % (2 * math.pi) - math.pi
     print(f"Move(0.3, 0, 0) for 10 s: {walked.pos[0] - start.pos[0]:.2f} m forward, "
           f"{walked.pos[1] - start.pos[1]:+.2f} m lateral, heading {yaw_of(walked.quat_wxyz) - yaw_of(start.quat_wxyz):+.3f} rad")
-    print(f"after StopMove: {math.dist(settled.pos[:2], still.pos[:2]):.3f} m in 3 s")
+    print(f"after StopMove: planted {planted_at - (start.sim_time_s + 10.0) if planted_at else float('nan'):.2f} s after "
+          f"it; pelvis drift over 5 s from 1 s after the plant: {math.dist(stood.pos[:2], stood_later.pos[:2]) * 100:.2f} cm "
+          f"(from 1 s after StopMove, the plant and its sway included: "
+          f"{since_stop * 100:.2f} cm over {since_span:.1f} s)")
     print(f"Move(0, 0, 0.3) for 5 s: {heading:+.2f} rad, {math.dist(still.pos[:2], turned.pos[:2]):.2f} m displacement")
     print(f"fell: {fell}")
-    policy, obs = WalkPolicy(), np.random.default_rng(0).normal(size=NUM_OBS).astype(np.float32) * 0.1
+    policy, obs = WalkPolicy(load_weights(walking.weights), walking.leg_default_q), np.random.default_rng(0).normal(size=NUM_OBS).astype(np.float32) * 0.1
     n = 5000
     t0 = time.perf_counter()
     for _ in range(n):

@@ -1,8 +1,8 @@
 """Unitree's open G1 walking policy (unitree_rl_gym `motion.pt`), run with numpy: no torch, no network.
 
 The network is an LSTM (47 -> 64, one layer) followed by an MLP (64 -> 32, ELU, 32 -> 12); its weights
-ship converted in `zensim.robots.unitree_g1.policy/motion.npz` (robots/unitree_g1/policy/README.md says
-where they come from and how they were converted). One `act` is one 50 Hz policy step; the LSTM's state
+ship converted in the robot's folder (`robots/unitree_g1/policy/motion.npz`, named by its walking.toml;
+robots/unitree_g1/policy/README.md says where they come from and how they were converted). One `act` is one 50 Hz policy step; the LSTM's state
 carries over between calls, as in the TorchScript module, until `reset`.
 
 The observation and action follow Unitree's reference loop (deploy_mujoco.py with configs/g1.yaml):
@@ -15,12 +15,14 @@ The observation and action follow Unitree's reference loop (deploy_mujoco.py wit
     obs[33:45] the previous action
     obs[45:47] sin, cos of the gait phase (period 0.8 s of sim time)
     target leg q = action x 0.25 + default
+The scales below belong to the network (its inputs as trained), so they live beside it; the default
+pose, gains and period are the robot's (walking.toml).
 """
 
 from __future__ import annotations
 
 import math
-from importlib import resources
+from pathlib import Path
 from typing import Final
 
 import numpy as np
@@ -28,16 +30,15 @@ import numpy as np
 NUM_OBS: Final = 47
 NUM_ACTIONS: Final = 12
 """The 12 leg joints: left then right hip pitch, hip roll, hip yaw, knee, ankle pitch, ankle roll."""
-CONTROL_DT_S: Final = 0.02
-"""One policy step per 20 ms of sim time (50 Hz), as trained."""
-DEFAULT_LEG_Q: Final = np.array([-0.1, 0.0, 0.0, 0.3, -0.2, 0.0] * 2)
-LEG_KP: Final = np.array([100.0, 100.0, 100.0, 150.0, 40.0, 40.0] * 2)
-LEG_KD: Final = np.array([2.0, 2.0, 2.0, 4.0, 2.0, 2.0] * 2)
 ANG_VEL_SCALE: Final = 0.25
 DOF_VEL_SCALE: Final = 0.05
 ACTION_SCALE: Final = 0.25
 CMD_SCALE: Final = np.array([2.0, 2.0, 0.25])
 GAIT_PERIOD_S: Final = 0.8
+STANCE_FRACTION: Final = 0.55
+"""Each foot is in stance for the first 55 % of its half of the gait (the left foot's phase is the gait's,
+the right's half a period later; unitree_rl_gym's contact reward): both feet are down for the first
+5 % of each half period."""
 WEIGHTS: Final = ("lstm_weight_ih", "lstm_weight_hh", "lstm_bias_ih", "lstm_bias_hh",
                   "actor0_weight", "actor0_bias", "actor2_weight", "actor2_bias")
 
@@ -49,23 +50,28 @@ def gravity_in_body(quat_wxyz: np.ndarray) -> np.ndarray:
 
 
 def observation(gyro: np.ndarray, quat_wxyz: np.ndarray, command: np.ndarray, leg_q: np.ndarray,
-                leg_dq: np.ndarray, last_action: np.ndarray, sim_time_s: float) -> np.ndarray:
+                leg_dq: np.ndarray, last_action: np.ndarray, sim_time_s: float, default_q: np.ndarray) -> np.ndarray:
     """The policy's 47-vector for one instant (see the module docstring)."""
     phase = (sim_time_s % GAIT_PERIOD_S) / GAIT_PERIOD_S
     obs = np.empty(NUM_OBS, dtype=np.float32)
     obs[0:3] = np.asarray(gyro) * ANG_VEL_SCALE
     obs[3:6] = gravity_in_body(np.asarray(quat_wxyz, float))
     obs[6:9] = np.asarray(command) * CMD_SCALE
-    obs[9:21] = np.asarray(leg_q) - DEFAULT_LEG_Q
+    obs[9:21] = np.asarray(leg_q) - default_q
     obs[21:33] = np.asarray(leg_dq) * DOF_VEL_SCALE
     obs[33:45] = last_action
     obs[45:47] = (math.sin(2 * math.pi * phase), math.cos(2 * math.pi * phase))
     return obs
 
 
-def load_weights() -> dict[str, np.ndarray]:
-    """The shipped weights (float32 arrays by name)."""
-    path = resources.files("zensim.robots.unitree_g1.policy").joinpath("motion.npz")
+def double_support(sim_time_s: float) -> bool:
+    """Whether the gait has both feet down at `sim_time_s` (STANCE_FRACTION): the instant to stop stepping."""
+    half = GAIT_PERIOD_S / 2
+    return (sim_time_s % half) / GAIT_PERIOD_S < STANCE_FRACTION - 0.5
+
+
+def load_weights(path: Path) -> dict[str, np.ndarray]:
+    """The weights in `path` (an .npz: float32 arrays by name)."""
     with path.open("rb") as f, np.load(f) as npz:
         return {name: np.array(npz[name], dtype=np.float32) for name in WEIGHTS}
 
@@ -78,11 +84,13 @@ class WalkPolicy:
     """The LSTM + MLP with its recurrent state.
 
     Args:
-        weights: arrays named as in WEIGHTS (load_weights() by default).
+        weights: arrays named as in WEIGHTS (`load_weights(path)`).
+        default_q: the leg stance, rad (action 0).
     """
 
-    def __init__(self, weights: dict[str, np.ndarray] | None = None) -> None:
-        w = load_weights() if weights is None else weights
+    def __init__(self, weights: dict[str, np.ndarray], default_q: np.ndarray) -> None:
+        w = weights
+        self.default_q = np.asarray(default_q, float)
         self._w_ih, self._w_hh = w["lstm_weight_ih"], w["lstm_weight_hh"]
         self._b = w["lstm_bias_ih"] + w["lstm_bias_hh"]
         self._w0, self._b0 = w["actor0_weight"], w["actor0_bias"]
@@ -110,4 +118,4 @@ class WalkPolicy:
 
     def leg_targets(self, action: np.ndarray) -> np.ndarray:
         """Leg joint targets (rad) for an action."""
-        return action * ACTION_SCALE + DEFAULT_LEG_Q
+        return action * ACTION_SCALE + self.default_q

@@ -1,0 +1,188 @@
+"""`zensim loco`, the walking controller, as users run it: a real sim, a real router, a plain zenoh client.
+
+The walking figures run under `clock: lockstep` (the controller is the clock: sim time moves at the pace
+of its commands, whatever loads the machine), so they are exact and the same on a loaded CI machine;
+the sim's physics is the same as in real time.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import subprocess
+import sys
+import textwrap
+
+import msgspec
+import pytest
+
+from support import TWO_JOINT_ARM, Latest, ctl, wait_for
+from zensim.schemas import Keys, LocoStatus, Odometry, SimStatus
+
+# A stand-up is 1 s to the squat and 1.5 s to the stance (walking.toml): 3 s of sim time leaves room.
+STAND_UP_S = 3.0
+
+
+def put_velocity(session, keys: Keys, vx: float = 0.0, vy: float = 0.0, wz: float = 0.0, timeout_s: float = 0.5) -> None:
+    session.put(keys.velocity, json.dumps({"vx": vx, "vy": vy, "wz": wz, "timeout_s": timeout_s}))
+
+
+class Walker:
+    """A lockstep sim, `zensim loco` and the test's plain client watching odometry and state/loco."""
+
+    def __init__(self, start_service, zsession, robot_id: str) -> None:
+        self.keys = Keys(robot_id)
+        self.session = zsession
+        self.sim = start_service("sim", "--clock", "lockstep")
+        self.odom = Latest(zsession, self.keys.odom, Odometry)
+        self.status = Latest(zsession, self.keys.sim_status, SimStatus)
+        self.status.keep_history = True
+        self.loco_status = Latest(zsession, self.keys.loco_status, LocoStatus)
+        self.odom.wait(timeout_s=60, what="the sim's first state")
+        self.loco = start_service("loco")
+        wait_for(lambda: "zensim loco up" in self.loco.log() or not self.loco.alive(), 60, "zensim loco to start")
+        assert self.loco.alive(), self.loco.log()
+        # Its alive/loco token is declared after its queryable: once this session sees the token, a query
+        # reaches the queryable (before, the router may not have passed the declaration on yet).
+        wait_for(lambda: any(r.ok is not None for r in zsession.liveliness().get(self.keys.alive("loco"), timeout=1)),
+                 30, "alive/loco")
+
+    def run_until(self, sim_time_s: float) -> Odometry:
+        return self.odom.wait(lambda m: m.sim_time_s >= sim_time_s, 30 + 6 * max(0.0, sim_time_s - self.now()),
+                              f"sim time {sim_time_s:.2f} s")
+
+    def now(self) -> float:
+        return self.odom.wait(timeout_s=30).sim_time_s
+
+    def fell(self) -> bool:
+        return any(s.fallen for s in self.status.history)
+
+    def stand_up(self) -> Odometry:
+        reply = ctl(self.session, self.keys.ctl_loco, {"verb": "walk"})
+        assert reply["ok"] and reply["active"] and reply["fsm_id"] == 500, reply
+        return self.run_until(self.now() + STAND_UP_S)
+
+
+@pytest.fixture
+def walker(start_service, zsession, robot_id):
+    return Walker(start_service, zsession, robot_id)
+
+
+def test_a_zenoh_client_walks_the_g1_stops_it_planted_and_walks_it_again(walker):
+    """Issue 28: cmd/velocity 0.4 m/s for 10 s walks 3-5 m straight; at zero the robot stops stepping and
+    stands still (< 2 cm in 5 s; the policy alone steps in place and creeps ~5 cm a second); it walks again."""
+    stood = walker.stand_up()
+    assert stood.pos[2] > 0.72, stood.pos
+    start = walker.odom.value
+    put_velocity(walker.session, walker.keys, vx=0.4, timeout_s=10.0)
+    walked = walker.run_until(start.sim_time_s + 10.0)
+    forward, lateral = walked.pos[0] - start.pos[0], walked.pos[1] - start.pos[1]
+    assert 3.0 <= forward <= 5.0 and abs(lateral) < 0.5, (start.pos, walked.pos)
+    assert walked.pos[2] > 0.6 and not walker.fell()
+    # The command lapsed at +10 s: the robot stops stepping and plants both feet.
+    walker.loco_status.wait(lambda s: s.walking and not s.stepping and s.commanded == (0.0, 0.0, 0.0), 30,
+                            "the controller to stop stepping")
+    settled = walker.run_until(walker.now() + 1.0)
+    still = walker.run_until(settled.sim_time_s + 5.0)
+    drift = math.dist(settled.pos[:2], still.pos[:2])
+    assert drift < 0.02, (settled.pos, still.pos)
+    assert still.pos[2] > 0.7 and not walker.fell()
+    # The next command: it walks again.
+    put_velocity(walker.session, walker.keys, vx=0.4, timeout_s=3.0)
+    again = walker.run_until(still.sim_time_s + 3.0)
+    assert again.pos[0] - still.pos[0] > 0.5, (still.pos, again.pos)
+    status = walker.loco_status.wait(lambda s: s.policy_steps > 0, 10, "a status")
+    assert status.velocity_refused == 0 and status.fsm_id == 500 and not walker.fell()
+
+
+CLIENT = textwrap.dedent("""
+    import json, sys, time, zenoh
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf) as session:
+        print("up", flush=True)
+        while True:  # a teleop client: the same command ten times a second, default timeout (0.5 s)
+            session.put(sys.argv[2], json.dumps({"vx": 0.3}))
+            time.sleep(0.1)
+""")
+
+
+def test_the_velocity_timeout_stops_a_robot_whose_client_died(walker, router_endpoint):
+    walker.stand_up()
+    client = subprocess.Popen([sys.executable, "-c", CLIENT, router_endpoint, walker.keys.velocity],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert client.stdout.readline().strip() == "up"
+        walker.loco_status.wait(lambda s: s.commanded[0] == 0.3, 30, "the client's command in force")
+    finally:
+        client.send_signal(signal.SIGKILL)  # died: no last "stop" ever comes
+        client.wait(10)
+        client.stdout.close()
+    received = walker.loco_status.wait(what="a status").velocity_received
+    assert received > 0
+    stopped = walker.loco_status.wait(lambda s: s.commanded == (0.0, 0.0, 0.0) and not s.stepping, 60,
+                                      "the robot to stop after its client died")
+    assert stopped.velocity_received == received  # nothing came after the client died: the timeout stopped it
+    settled = walker.run_until(walker.now() + 1.0)
+    later = walker.run_until(settled.sim_time_s + 2.0)
+    assert math.dist(settled.pos[:2], later.pos[:2]) < 0.02 and not walker.fell()
+
+
+def test_bad_velocity_commands_and_requests_are_refused_counted_and_the_robot_stays_up(walker):
+    """NaN, 1e9, oversize (10 kB: the router itself drops cmd/** payloads over 64 kB), unknown fields, unknown FSM ids, a wildcard query, a flood: refused or shed, counted;
+    the controller goes on (it keeps time: states and policy steps go on) and the robot stays up."""
+    walker.stand_up()
+    keys, session = walker.keys, walker.session
+    before = walker.loco_status.wait(what="a status")
+    bad = [json.dumps({"vx": 1e9}), json.dumps({"vx": 0.3, "timeout_s": -1}), json.dumps({"vx": 0.3, "timeout_s": 1e9}),
+           '{"vx": NaN}', json.dumps({"v_x": 0.3}), json.dumps({"vx": "fast"}), b"\xff" * 10,
+           json.dumps({"vx": 0.3, "pad": "x" * 10_000}), msgspec.msgpack.encode({"vx": float("nan")})]
+    for i, payload in enumerate(bad, 1):
+        session.put(keys.velocity, payload)
+        walker.loco_status.wait(lambda s, i=i: s.velocity_received >= before.velocity_received + i, 30,
+                                f"bad command {i} read")
+    status = walker.loco_status.wait(lambda s: s.velocity_refused + s.velocity_shed - before.velocity_refused
+                                     - before.velocity_shed >= len(bad), 30, "every bad command refused or shed")
+    assert status.commanded == (0.0, 0.0, 0.0)  # none of them moved the robot
+    assert status.error  # the latest refusal's reason is reported
+    for request in ({"fsm_id": 12345}, {"verb": "fly"}, {"fsm_id": 2**40}, {"verb": "walk", "fsm_id": 1}, {"x": 1},
+                    {"balance_mode": 7}):
+        reply = ctl(session, keys.ctl_loco, request)
+        assert not reply["ok"] and reply["error"], (request, reply)
+        assert reply["fsm_id"] == 500  # nothing changed
+    replies = list(session.get(f"{keys.root}/ctl/*", payload=json.dumps({"verb": "damp"}), timeout=10))
+    loco_replies = [json.loads(r.ok.payload.to_bytes()) for r in replies
+                    if r.ok is not None and str(r.ok.key_expr) == keys.ctl_loco]
+    assert loco_replies and not loco_replies[0]["ok"]  # a wildcard query does nothing
+    # A flood: 20 000 velocity commands as fast as a client can put them; latest wins, the rest shed.
+    flood_start = walker.loco_status.wait(what="a status")
+    for _ in range(20_000):
+        session.put(keys.velocity, b'{"vx": 0.0}')
+    flooded = walker.loco_status.wait(lambda s: s.velocity_received >= flood_start.velocity_received + 20_000, 60,
+                                      "the flood read")
+    assert flooded.velocity_shed > flood_start.velocity_shed + 15_000, flooded
+    later = walker.run_until(walker.now() + 2.0)
+    assert later.pos[2] > 0.7 and not walker.fell()
+    final = walker.loco_status.wait(lambda s: s.sim_time_s >= later.sim_time_s - 0.5, 30, "a newer status")
+    assert final.fsm_id == 500 and final.walking and final.requests_refused >= before.requests_refused + 7
+    assert walker.loco.alive()
+
+
+def test_one_robot_one_walking_controller(walker, start_service):
+    second = start_service("loco")
+    assert second.proc.wait(30) == 2
+    assert "already has a walking controller" in second.log(), second.log()
+    assert walker.loco.alive()
+
+
+def test_a_robot_without_a_walking_controller_says_so_in_one_line(start_service, tmp_path):
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(TWO_JOINT_ARM)
+    start_service("sim", "--urdf", str(urdf))
+    loco = start_service("loco")
+    assert loco.proc.wait(60) == 0, loco.log()
+    lines = [line for line in loco.log().splitlines() if "no walking controller" in line]
+    assert len(lines) == 1 and "2 joints" in lines[0], loco.log()
