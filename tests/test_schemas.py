@@ -70,6 +70,10 @@ SAMPLES["world_info"] = dict(world="lab", robots=[dict(robot="g1a", model="g1_29
 SAMPLES["ros1_status"] = dict(seq=4, master_uri="http://127.0.0.1:11311", master_up=True, joint_states_published=400,
                               joint_states_rate_hz=100.0, commands_received=5, commands_forwarded=3, rejected=2,
                               last_error="unknown joint 'tail'", mesh_url="http://127.0.0.1:7011")
+# The ROS 2 face's status (issue 30).
+SAMPLES["ros2_status"] = dict(seq=2, transports=["zenoh", "dds"], domain_id=0, joint_states_published=200,
+                              joint_states_rate_hz=100.0, sim_time_s=2.0, commands_received=4, commands_forwarded=3,
+                              rejected=1, last_error="NaN in data", command_age_s=0.01)
 
 # Walking (issue 28).
 SAMPLES["velocity_command"] = dict(vx=0.4, vy=-0.1, wz=0.2, timeout_s=0.5)
