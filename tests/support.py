@@ -11,7 +11,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 T = TypeVar("T")
 
@@ -125,9 +125,9 @@ class Latest:
 
         from zensim.schemas import Codec
 
-        self._codec = Codec(message_type)
+        self._codec: Codec[Any] = Codec(message_type)
         self._lock = threading.Lock()
-        self.value = None
+        self.value: Any = None  # the newest message, of `message_type`
         self.count = 0
         self.history: list = []
         self.keep_history = False

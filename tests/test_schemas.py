@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from typing import Any
 
 import msgspec
 import pytest
@@ -80,8 +81,8 @@ def test_every_wire_type_has_a_sample() -> None:
 @pytest.mark.parametrize("message_type", WIRE_TYPES, ids=tag)
 @pytest.mark.parametrize("fmt", ["msgpack", "json"])
 def test_round_trip(message_type: type, fmt: str) -> None:
-    codec = Codec(message_type)
-    message = msgspec.convert(SAMPLES[tag(message_type)], message_type)
+    codec: Codec[Any] = Codec(message_type)
+    message: Any = msgspec.convert(SAMPLES[tag(message_type)], message_type)
     assert codec.decode(codec.encode(message, fmt)) == message  # type: ignore[arg-type]
 
 

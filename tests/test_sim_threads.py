@@ -16,6 +16,7 @@ import json
 import threading
 import time
 import traceback
+from typing import Literal
 
 import pytest
 import zenoh
@@ -36,7 +37,7 @@ class GuardedSimulation(Simulation):
     offences: list[str]
 
     @property
-    def data(self):  # type: ignore[override]
+    def data(self):
         lock = self.physics
         if lock is not None and not lock.held():
             frames = traceback.extract_stack(limit=6)[:-1]
@@ -74,7 +75,8 @@ def bad_and_wildcard_queries(client: zenoh.Session, keys: Keys) -> None:
 
 
 @pytest.mark.parametrize("clock", ["realtime", "lockstep"])
-def test_mjdata_is_touched_only_with_the_physics_lock_held(router_endpoint: str, robot_id: str, clock: str) -> None:
+def test_mjdata_is_touched_only_with_the_physics_lock_held(router_endpoint: str, robot_id: str,
+                                                          clock: Literal["realtime", "lockstep"]) -> None:
     keys = Keys(robot_id)
     settings = SimSettings(robot_id=robot_id, mode="fixed", clock=clock, status_rate_hz=100.0, state_rate_hz=250.0,
                            watchdog_timeout_s=30.0)
