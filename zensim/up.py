@@ -26,9 +26,10 @@ from typing import ClassVar
 import msgspec
 
 from zensim.common.logs import setup_logging
-from zensim.common.settings import AMBIGUOUS_LEGACY, ENV_PREFIX, describe, env_names, settings_or_exit
+from zensim.common.settings import (AMBIGUOUS_LEGACY, ENV_PREFIX, LOCAL_ROUTER_ENDPOINT, SECURE_LOCAL_ROUTER_ENDPOINT, describe,
+                                    env_names, settings_or_exit)
 from zensim.common.shutdown import stop_on_signals
-from zensim.schemas.keys import SERVICES
+from zensim.schemas.keys import OPTIONAL_SERVICES, SERVICES
 
 logger = logging.getLogger("zensim.up")
 
@@ -40,7 +41,7 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
 
     env_prefix: ClassVar[str] = "UP"
 
-    router_endpoint: str = "tcp/127.0.0.1:7447"
+    router_endpoint: str = LOCAL_ROUTER_ENDPOINT
     """Where the router listens and the other services connect."""
     viz: bool = True
     """Also run the web viewer."""
@@ -52,9 +53,6 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """Python log level of `zensim up` itself (the services follow ZENSIM_LOG_LEVEL)."""
     secure_dir: str | None = None
     """A folder made by `zensim secure init`: the router and services use TLS, passwords and roles."""
-
-
-SECURE_ENDPOINT = "tls/127.0.0.1:7447"
 
 
 def settings_of(name: str) -> type[msgspec.Struct]:
@@ -178,11 +176,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Start the children before anything opens a zenoh session (fork after zenoh.open hangs).
     endpoint = settings.router_endpoint
     if settings.secure_dir and endpoint == UpSettings().router_endpoint:
-        endpoint = SECURE_ENDPOINT
+        endpoint = SECURE_LOCAL_ROUTER_ENDPOINT
     if settings.secure_dir and not endpoint.startswith("tls/"):
         logger.error("with --secure-dir the router endpoint is tls/, not %s", endpoint)
         return 2
-    names = [name for name in SERVICES if name not in ("unitree", "ros1") and (settings.viz or name != "viz")]
+    names = [name for name in SERVICES if name not in OPTIONAL_SERVICES and (settings.viz or name != "viz")]
     roscore = None
     if settings.ros1:
         names.append("ros1")

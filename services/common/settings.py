@@ -27,7 +27,7 @@ import os
 import re
 import sys
 from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar, Literal, TypeVar
+from typing import Any, ClassVar, Final, Literal, TypeVar
 
 import msgspec
 
@@ -46,6 +46,13 @@ class SettingsError(ValueError):
     """A setting that cannot be parsed or is out of range; names the field."""
 
 
+ROUTER_PORT: Final = 7447
+"""Zenoh's customary router port: where `zensim router` (and `zensim up`'s router) listen unless told."""
+LOCAL_ROUTER_ENDPOINT: Final = f"tcp/127.0.0.1:{ROUTER_PORT}"
+"""The router's default endpoint, and where peers with no endpoints meet on one machine."""
+SECURE_LOCAL_ROUTER_ENDPOINT: Final = f"tls/127.0.0.1:{ROUTER_PORT}"
+"""The router's default endpoint on a secured network (`zensim secure init`, `--secure-dir`)."""
+
 ENDPOINT_PATTERN = re.compile(r"(?P<proto>[a-z0-9-]+)/(?P<address>[^#?]+)(?P<rest>[#?].*)?")
 """`proto/address[?metadata][#config]`, the shape of a zenoh locator."""
 PORTED_PROTOCOLS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
@@ -61,7 +68,7 @@ def check_endpoint(endpoint: str) -> str:
     """
     match = ENDPOINT_PATTERN.fullmatch(endpoint)
     if not match:
-        raise ValueError(f"endpoint {endpoint!r} is not of the form proto/address (e.g. tcp/127.0.0.1:7447)")
+        raise ValueError(f"endpoint {endpoint!r} is not of the form proto/address (e.g. {LOCAL_ROUTER_ENDPOINT})")
     proto, address = match["proto"], match["address"]
     if proto not in KNOWN_PROTOCOLS:
         raise ValueError(f"endpoint {endpoint!r}: unknown protocol {proto!r} (known: {', '.join(sorted(KNOWN_PROTOCOLS))})")

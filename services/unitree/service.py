@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
+from zensim.common.pacing import GIL_SWITCH_INTERVAL_S
 from zensim.common.robot_info import fetch_robot
 from zensim.common.wire import TypedPublisher, decode_input
 from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, RobotInfo, SimStatus, UnitreeStatus, bounded, topics
@@ -72,8 +73,6 @@ DDS_WAIT_S = 0.1
 LOWCMD_TAKE_PERIOD_S = 0.001
 """Shortest wall time between two takes of rt/lowcmd. A controller at 500 Hz or 1 kHz (the SDK's
 examples) sends slower than this and never waits; a faster one has its older samples shed."""
-GIL_SWITCH_INTERVAL_S = 0.0002
-"""Longest a thread that wakes up waits for the GIL while another holds it (CPython default: 5 ms)."""
 
 
 @dataclass(frozen=True)
