@@ -17,7 +17,7 @@ import numpy as np
 from zensim.robots import robot_files
 from zensim.schemas import MotorCommand
 from zensim.sim.physics import Limits, Simulation
-from zensim.unitree.loco import LocoController
+from zensim.unitree.loco import LocoController, Squat
 from zensim.unitree.walk_policy import NUM_OBS, WalkPolicy
 
 
@@ -29,7 +29,7 @@ def yaw_of(quat_wxyz) -> float:
 def main() -> None:
     sim = Simulation(robot_files("g1"), "floating", Limits(5000, 500), 1e9)
     sim.watchdog_enabled = False
-    ctl = LocoController()
+    ctl = LocoController(Squat(sim.robot.default_q, sim.robot.kp, sim.robot.kd))
     fell = False
 
     def run(seconds: float):  # noqa: ANN202

@@ -6,9 +6,15 @@ import math
 import numpy as np
 import pytest
 
+from zensim.robots import robot_files
+from zensim.robots.builder import build
 from zensim.unitree import sport
-from zensim.unitree.loco import NUM_JOINTS, STAND_Q, UPPER_KP, LocoController
+from zensim.unitree.loco import NUM_JOINTS, STAND_Q, UPPER_KP, LocoController, Squat
 from zensim.unitree.walk_policy import DEFAULT_LEG_Q, NUM_OBS, WalkPolicy, gravity_in_body, load_weights, observation
+
+_G1 = build(robot_files("g1"), "floating")
+G1_SQUAT = Squat(_G1.default_q, _G1.kp, _G1.kd)
+"""The G1's squat and floating gains, from its control file, as the sim serves them on info/robot."""
 
 UPRIGHT = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -46,7 +52,7 @@ def tick(controller, t, q=None, force=False):
 
 
 def test_passive_until_asked_then_one_command_per_20_ms_of_sim_time():
-    controller = LocoController()
+    controller = LocoController(G1_SQUAT)
     assert tick(controller, 0.0) is None
     controller.set_fsm(706)
     sent = [t for t in np.arange(0, 1.0, 0.002) if tick(controller, float(t)) is not None]
@@ -54,7 +60,7 @@ def test_passive_until_asked_then_one_command_per_20_ms_of_sim_time():
 
 
 def test_squat_to_stand_hands_over_to_the_policy_and_toggles_back():
-    controller = LocoController()
+    controller = LocoController(G1_SQUAT)
     controller.set_fsm(706)
     for t in np.arange(0, 3.0, 0.02):
         targets = tick(controller, float(t))
@@ -65,7 +71,7 @@ def test_squat_to_stand_hands_over_to_the_policy_and_toggles_back():
 
 
 def test_a_sim_reset_restarts_the_mode_from_the_spawn_pose():
-    controller = LocoController()
+    controller = LocoController(G1_SQUAT)
     controller.set_fsm(500)
     for t in np.arange(0, 3.0, 0.02):
         tick(controller, float(t))
@@ -81,7 +87,7 @@ def test_a_sim_reset_restarts_the_mode_from_the_spawn_pose():
 
 
 def test_arm_sdk_blends_arms_by_weight_keeps_the_waist_stiff_and_leaves_the_legs():
-    controller = LocoController()
+    controller = LocoController(G1_SQUAT)
     controller.set_fsm(500)
     for t in np.arange(0, 3.0, 0.02):
         base = tick(controller, float(t))
@@ -95,8 +101,22 @@ def test_arm_sdk_blends_arms_by_weight_keeps_the_waist_stiff_and_leaves_the_legs
     assert controller.arm_sdk.weight == 1.0
 
 
+def test_sitting_holds_the_robots_own_squat_with_its_floating_gains():
+    """The squat and its gains are the robot's control file's (through info/robot), not a copy in the controller."""
+    assert G1_SQUAT.q[3] == 0.9 and G1_SQUAT.kp[0] == 1000.0  # control.toml: knee 0.9 rad, legs kp 1000
+    with pytest.raises(ValueError, match="no robot yet"):
+        LocoController().set_fsm(3)
+    softer = Squat(G1_SQUAT.q * 0.5, G1_SQUAT.kp * 0.5, G1_SQUAT.kd * 0.5)
+    for squat in (G1_SQUAT, softer):
+        controller = LocoController(squat)
+        controller.set_fsm(3)
+        for t in np.arange(0, 2.0, 0.02):
+            targets = tick(controller, float(t))
+        assert np.allclose(targets.q, squat.q) and np.allclose(targets.kp, squat.kp) and np.allclose(targets.kd, squat.kd)
+
+
 def test_sport_answers_codes_as_the_robot():
-    controller = LocoController()
+    controller = LocoController(G1_SQUAT)
     assert sport.answer(1, "{}", controller, 0.0) == (0, "1.0.0.0")
     assert sport.answer(7001, "{}", controller, 0.0) == (0, json.dumps({"data": 0}))
     assert sport.answer(7101, json.dumps({"data": 706}), controller, 0.0) == (0, "")

@@ -27,7 +27,7 @@ from . import sport
 from .codec import CodecError, decode_low_cmd
 from .highlevel_dds import HighLevelDds
 from .idl import GoIMUState_, RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_, SportModeState_, TimeSpec_
-from .loco import ARM_SDK_FIRST, ARM_SDK_WEIGHT_SLOT, NUM_JOINTS, LocoController, Targets
+from .loco import ARM_SDK_FIRST, ARM_SDK_WEIGHT_SLOT, NUM_JOINTS, LocoController, Squat, Targets
 from .lowlevel import rpy_from_wxyz
 
 logger = logging.getLogger("zensim.unitree")
@@ -80,10 +80,11 @@ class HighLevel:
         # callback per 500 Hz sample would take the GIL from the DDS thread 500 times a second.
         self._odom = session.declare_subscriber(keys.odom, zenoh.handlers.RingChannel(1))
 
-    def adopt(self, joint_names: tuple[str, ...], cap_bytes: int) -> None:
+    def adopt(self, joint_names: tuple[str, ...], squat: Squat, cap_bytes: int) -> None:
         """A (new) robot: the controller runs only on the G1, and starts passive."""
         with self._lock:
             self.enabled = is_g1(joint_names)
+            self.controller.squat = squat
             self._joint_names = joint_names
             self._cap_bytes = cap_bytes
             self.controller.release()

@@ -41,6 +41,8 @@ from typing import Final
 
 import numpy as np
 
+from zensim.schemas import RobotInfo
+
 from .walk_policy import (CONTROL_DT_S, DEFAULT_LEG_Q, LEG_KD, LEG_KP, NUM_ACTIONS, WalkPolicy,
                           observation)
 
@@ -61,16 +63,10 @@ FSM_IDS: Final = (FSM_ZERO_TORQUE, FSM_DAMP, FSM_SIT, FSM_START, FSM_LIE_TO_STAN
 
 STAND_Q: Final = np.concatenate([DEFAULT_LEG_Q, np.zeros(NUM_JOINTS - NUM_ACTIONS)])
 """The policy's stance, upper body at 0."""
-SQUAT_Q: Final = np.concatenate([np.array([-0.45, 0.0, 0.0, 0.9, -0.45, 0.0] * 2), np.zeros(NUM_JOINTS - 12)])
-"""The crouch sit and stand-to-squat go to (the sim's spawn squat)."""
 STAND_UP_S: Final = 1.5
 """Sim time a ramp from the squat to the stance (or from anywhere to the squat) takes."""
 SQUAT_S: Final = 1.0
 """Sim time the first leg of a stand-up, from wherever the robot is to the squat, takes."""
-RAMP_KP: Final = np.array([1000.0] * 12 + [1000.0] * 3 + [100.0] * 14)
-RAMP_KD: Final = np.array([50.0] * 12 + [50.0] * 3 + [3.0] * 14)
-"""Gains while ramping and holding a pose: the sim's floating-mode leg gains, which hold the squat
-(measured: kp 200 on the ankles lets a robot that sagged in damp tip over backwards on the way up)."""
 UPPER_KP: Final = 3000.0
 UPPER_KD: Final = 100.0
 """Waist and arms while walking (measured: kp 300 kd 5 lets a straight walk curve metres sideways)."""
@@ -91,6 +87,26 @@ MAX_DURATION_S: Final = 864000.0
 
 def _lerp(a: np.ndarray, b: np.ndarray, ratio: float) -> np.ndarray:
     return (1.0 - ratio) * a + ratio * b
+
+
+@dataclass(frozen=True)
+class Squat:
+    """The robot's own squat and the gains that hold it: its control file's pose and floating-mode gains
+    (robots/unitree_g1/control.toml), as the sim serves them on info/robot; the controller keeps no copy.
+
+    Sit and stand-to-squat go to this crouch, a stand-up ramps through it, and every ramp holds its pose
+    with these gains (measured: kp 200 on the ankles lets a robot that sagged in damp tip over backwards
+    on the way up; the floating gains, on which the robot stands at spawn, hold it)."""
+
+    q: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+
+    @classmethod
+    def of(cls, info: RobotInfo) -> Squat:
+        floating = info.gains["floating"]
+        return cls(np.asarray(info.default_q["floating"], float), np.asarray(floating.kp, float),
+                   np.asarray(floating.kd, float))
 
 
 @dataclass
@@ -146,7 +162,9 @@ class LocoState:
 class LocoController:
     """The FSM, the ramps, the policy and the arm_sdk blend (see the module docstring)."""
 
-    def __init__(self, policy: WalkPolicy | None = None) -> None:
+    def __init__(self, squat: Squat | None = None, policy: WalkPolicy | None = None) -> None:
+        self.squat = squat
+        """The robot's squat (Squat.of its info/robot); None until a robot is adopted: no mode can start."""
         self.policy = policy or WalkPolicy()
         self.state = LocoState()
         self.arm_sdk: ArmSdk | None = None
@@ -167,6 +185,9 @@ class LocoController:
         """Switch the FSM. Raises ValueError for an id the controller does not run."""
         if fsm_id not in FSM_IDS:
             raise ValueError(f"FSM id {fsm_id} is not one of {FSM_IDS}")
+        if self.squat is None:
+            raise ValueError("no robot yet: its squat and gains come from its info/robot")
+        squat = self.squat
         state = self.state
         standing = state.active and state.walking  # a finished stand-up hands over to walking
         state.active = True
@@ -175,9 +196,9 @@ class LocoController:
         self._ramp_start_s = None
         self._next_tick_s = None  # tick at the next state (a reset may just have moved sim time back)
         if fsm_id == FSM_SQUAT_STAND and standing:
-            self._start_ramp(SQUAT_Q, then_walk=False)
+            self._start_ramp(squat.q, then_walk=False)
         elif fsm_id == FSM_SIT:
-            self._start_ramp(SQUAT_Q, then_walk=False)
+            self._start_ramp(squat.q, then_walk=False)
         elif fsm_id in (FSM_SQUAT_STAND, FSM_LIE_TO_STAND):
             self._start_ramp(STAND_Q, then_walk=True)
         elif fsm_id == FSM_START:
@@ -278,19 +299,21 @@ class LocoController:
             self._ramp_from = np.array(q, float)
         ramp_from: np.ndarray = self._ramp_from
         elapsed = now_s - self._ramp_start_s
+        squat = self.squat
+        assert squat is not None, "set_fsm refuses to start a ramp without the robot's squat"
         if self._ramp_to is STAND_Q:
             # Through the squat: straight from a deep crouch to the stance in joint space moves the
             # centre of mass behind the feet (measured: it falls backwards); from the squat it does not.
             if elapsed < SQUAT_S:
-                return Targets.hold(_lerp(ramp_from, SQUAT_Q, elapsed / SQUAT_S), RAMP_KP, RAMP_KD)
-            start, elapsed = SQUAT_Q, elapsed - SQUAT_S
+                return Targets.hold(_lerp(ramp_from, squat.q, elapsed / SQUAT_S), squat.kp, squat.kd)
+            start, elapsed = squat.q, elapsed - SQUAT_S
         else:
             start = ramp_from
         ratio = min(1.0, elapsed / STAND_UP_S)
         if ratio >= 1.0 and self._then_walk:
             self._begin_walk()
             return self._walk(now_s, q, dq, quat_wxyz, gyro)
-        return Targets.hold(_lerp(start, self._ramp_to, ratio), RAMP_KP, RAMP_KD)
+        return Targets.hold(_lerp(start, self._ramp_to, ratio), squat.kp, squat.kd)
 
     def _begin_walk(self) -> None:
         self.state.walking = True

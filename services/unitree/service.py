@@ -63,6 +63,7 @@ from .dds import UnitreeDds
 from .highlevel import HighLevel
 from .highlevel_dds import HighLevelDds
 from .idl import RequestIdentity_, Response_, ResponseHeader_, ResponseStatus_
+from .loco import Squat
 from .lowlevel import LowCmdError, LowStateBuilder, motor_command
 from .settings import UnitreeSettings
 
@@ -83,13 +84,15 @@ class Robot:
     """The canonical joint order: LowCmd_/LowState_ motor i is joint i."""
     run_id: str
     """The sim run that described it (RobotInfo.run_id)."""
+    squat: Squat
+    """Its squat and the gains that hold it, for the locomotion controller (its control file's)."""
 
     @classmethod
     def from_info(cls, info: RobotInfo) -> Robot:
         """Raises ValueError for a robot with more joints than LowCmd_ has motor slots."""
         if len(info.joint_names) > NUM_MOTORS:
             raise ValueError(f"the robot has {len(info.joint_names)} joints; LowCmd_ has {NUM_MOTORS} motor slots")
-        return cls(tuple(info.joint_names), info.run_id)
+        return cls(tuple(info.joint_names), info.run_id, Squat.of(info))
 
 
 class Counters:
@@ -138,7 +141,7 @@ class UnitreeAdapter:
         # out on the same cmd/motors publisher as forwarded LowCmd_.
         self._motors_lock = threading.Lock()
         self.highlevel = HighLevel(session, keys, HighLevelDds(dds), self._put_motors, self._cap_bytes)
-        self.highlevel.adopt(robot.joint_names, self._cap_bytes)
+        self.highlevel.adopt(robot.joint_names, robot.squat, self._cap_bytes)
         # One subscriber, so one callback thread, for the sim's states: see the module docstring.
         # Other state/* keys (odom, the adapter's own status) are dropped by the key lookup.
         self._state_routes = {keys.joints: self._on_joints, keys.imu: self._on_imu,
@@ -153,7 +156,7 @@ class UnitreeAdapter:
             self._cap_bytes = vector_cap_bytes(robot.joint_names)
             self.sim_restarted.clear()
         if self.highlevel is not None:
-            self.highlevel.adopt(robot.joint_names, self._cap_bytes)
+            self.highlevel.adopt(robot.joint_names, robot.squat, self._cap_bytes)
 
     # --- zensim -> DDS (the state callback thread) ---------------------------------
 
