@@ -17,7 +17,7 @@ import msgspec
 import pytest
 from mcap.reader import make_reader
 
-from support import Latest, free_port, wait_for
+from support import Latest, free_port, wait_for, wait_subscribed
 from test_record_process import stop_recorder, zensim
 from zensim.mcapfile import ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter
 from zensim.robots import robot_files
@@ -45,7 +45,7 @@ class TestRecorderUnderHostileSamples:
         keys, path = Keys(robot_id), tmp_path / "nan.mcap"
         recorder = start_service("record", "-o", str(path))
         wait_for(lambda: "recording zensim/" in recorder.log(), 30, "the recorder to start")
-        time.sleep(0.5)
+        wait_subscribed(zsession, keys.joints, 10, "the recorder's subscription")
         codec = Codec(JointState)
         good = JointState(sim_time_s=1.0, seq=1, q=(0.1, 0.2), dq=(0.0, 0.0), tau=(0.0, 0.0))
         for q in ((float("nan"), 0.2), (float("inf"), 0.2)):
@@ -68,7 +68,7 @@ class TestRecorderUnderHostileSamples:
         keys, path = Keys(robot_id), tmp_path / "bounded.mcap"
         recorder = start_service("record", "-o", str(path), "--max-bytes", "200000")
         wait_for(lambda: "recording zensim/" in recorder.log(), 30, "the recorder to start")
-        time.sleep(0.5)
+        wait_subscribed(zsession, keys.joints, 10, "the recorder's subscription")
         codec = Codec(JointState)
         q = tuple(0.001 * i for i in range(29))
         deadline = time.monotonic() + 30
