@@ -54,6 +54,9 @@ def test_the_readme_lists_every_service() -> None:
 
 def test_modes_and_the_router_port_have_one_home() -> None:
     assert MODES == get_args(Mode) == ("floating", "fixed")
+    page = (REPO / "services" / "viz" / "static" / "index.html").read_text()
+    selector = re.search(r'<select id="mode">(.*?)</select>', page, re.DOTALL)
+    assert selector and tuple(re.findall(r'<option value="(\w+)">', selector.group(1))) == MODES, "the page's mode selector"
     assert LOCAL_ROUTER_ENDPOINT.endswith(f":{ROUTER_PORT}")
     # What a user reads in --help comes from the same place.
     result = subprocess.run([sys.executable, "-m", "zensim", "secure", "init", "--help"], capture_output=True,
