@@ -20,6 +20,7 @@ from zensim.common.settings import LOCAL_ROUTER_ENDPOINT, ROUTER_PORT
 from zensim.schemas import MODES, Mode
 from zensim.schemas.keys import OPTIONAL_SERVICES, SERVICES
 from zensim.schemas.topics import ROLES
+from zensim.up import SETTINGS_OF, settings_of
 
 
 def test_every_service_is_a_command_with_a_role_of_its_own() -> None:
@@ -30,6 +31,7 @@ def test_every_service_is_a_command_with_a_role_of_its_own() -> None:
             assert service in service_roles, f"{service} has no Role in schemas/topics.py ROLES"
             assert any(f"alive/{service}" in role.tokens for role in ROLES if role.name == service)
     assert LONG_RUNNING == set(SERVICES)
+    assert set(SETTINGS_OF) == set(SERVICES) and all(settings_of(service) for service in SERVICES)
     assert set(OPTIONAL_SERVICES) < set(SERVICES)
 
 

@@ -14,6 +14,7 @@ prefix (`ZENSIM_SIM_MODE=fixed ZENSIM_BRIDGE_RATE_HZ=500 zensim up`).
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
 import signal
@@ -21,7 +22,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from typing import ClassVar
+from typing import ClassVar, Final
 
 import msgspec
 
@@ -55,31 +56,23 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """A folder made by `zensim secure init`: the router and services use TLS, passwords and roles."""
 
 
+SETTINGS_OF: Final[dict[str, tuple[str, str]]] = {
+    "router": ("zensim.router", "RouterSettings"),
+    "sim": ("zensim.sim.settings", "SimSettings"),
+    "bridge": ("zensim.bridge.settings", "BridgeSettings"),
+    "viz": ("zensim.viz.settings", "VizSettings"),
+    "unitree": ("zensim.unitree.settings", "UnitreeSettings"),
+    "ros1": ("zensim.ros1.settings", "Ros1Settings"),
+}
+"""Each service's settings struct (module, class), imported when needed: each module is light, no mujoco.
+Keyed by keys.SERVICES (tests/test_facts.py checks that every service has one)."""
+
+
 def settings_of(name: str) -> type[msgspec.Struct]:
-    """The settings struct of a service `zensim up` runs (imported here: each is light, no mujoco)."""
-    if name == "router":
-        from zensim.router import RouterSettings
-
-        return RouterSettings
-    if name == "sim":
-        from zensim.sim.settings import SimSettings
-
-        return SimSettings
-    if name == "bridge":
-        from zensim.bridge.settings import BridgeSettings
-
-        return BridgeSettings
-    if name == "unitree":
-        from zensim.unitree.settings import UnitreeSettings
-
-        return UnitreeSettings
-    if name == "ros1":
-        from zensim.ros1.settings import Ros1Settings
-
-        return Ros1Settings
-    from zensim.viz.settings import VizSettings
-
-    return VizSettings
+    """The settings struct of a service `zensim up` runs. Raises KeyError for a name that is no service."""
+    module, cls = SETTINGS_OF[name]
+    settings: type[msgspec.Struct] = getattr(importlib.import_module(module), cls)
+    return settings
 
 
 def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir: str | None = None,
