@@ -23,10 +23,11 @@ import mujoco
 import numpy as np
 
 from zensim.robots import RobotFiles
-from zensim.schemas.messages import MODES, Mode
+from zensim.schemas.messages import MODES, Mode, Terrain
 from zensim.robots.control import DEFAULT_ARMATURE_KG_M2, ControlConfig, ModeConfig, first_match, load_control
 from zensim.robots.description import Description, Joint, RobotModelError, parse_urdf
 from zensim.robots.mesh_files import resolve_mesh
+from zensim.robots import terrain as terrain_shapes
 
 __all__ = ["MODES", "Placement", "Robot", "RobotModelError", "build", "build_world", "mjcf_xml", "place_base"]
 
@@ -213,7 +214,7 @@ def _apply_inertia_floors(spec: mujoco.MjSpec, mass_floor: float, inertia_floor:
             body.inertia = np.maximum(np.array(body.inertia), inertia_floor)
 
 
-def _prepare(files: RobotFiles, mode: Mode) -> _Prepared:
+def _prepare(files: RobotFiles, mode: Mode, terrain: Terrain | None = None) -> _Prepared:
     """Load the URDF into a fresh MjSpec and complete it for `mode`."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -288,6 +289,8 @@ def _prepare(files: RobotFiles, mode: Mode) -> _Prepared:
     world.add_geom(name=FLOOR_NAME, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05],
                    friction=[model_cfg.floor_friction, 0.005, 0.0001], contype=floor_bits,
                    conaffinity=floor_bits, rgba=[0.5, 0.55, 0.6, 1.0])
+    if terrain is not None:  # on the floor, colliding as it does
+        terrain_shapes.add_to_spec(spec, terrain, floor_bits, floor_bits, [model_cfg.floor_friction, 0.005, 0.0001])
     world.add_light(name="sun", pos=[0.0, 0.0, 4.0], dir=[0.0, 0.0, -1.0], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
 
     spec.body(imu_link).add_site(name=model_cfg.imu_site)
@@ -319,13 +322,14 @@ def _lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData, slot: WorldSlot 
     return lowest
 
 
-def build(files: RobotFiles, mode: Mode) -> Robot:
+def build(files: RobotFiles, mode: Mode, terrain: Terrain | None = None) -> Robot:
     """Compile a robot for one mode.
 
     Args:
         files: The URDF and control file (see `robot_files`).
         mode: "floating" (free base on the floor, gravity per control.toml) or "fixed" (base welded
             at `fixed.base_height_m`, gravity off by default).
+        terrain: slopes, stairs, rough ground... on the floor (robots/terrain.py); None: the flat floor.
 
     Returns:
         The compiled robot; its model holds one actuator per actuated joint in URDF order.
@@ -335,7 +339,7 @@ def build(files: RobotFiles, mode: Mode) -> Robot:
         ControlConfigError: A control file that does not decode (names the field).
         FileNotFoundError: A missing URDF, control or mesh file.
     """
-    prepared = _prepare(files, mode)
+    prepared = _prepare(files, mode, terrain)
     model = _compile(prepared, files)
     robot = _robot_from(prepared, model, files, mode)
     _place_spawn(robot)
@@ -411,6 +415,8 @@ def _place_spawn(robot: Robot) -> None:
         # clearance height, not at -inf, which made every step NaN.
         height = SPAWN_CLEARANCE_M - (lowest if math.isfinite(lowest) else 0.0)
         logger.info("%s: no %s.base_height_m, derived %.4f m from the model's lowest point", robot.name, mode, height)
+    if mode == "floating":  # on terrain, the spawn height is over the highest ground under the feet
+        height += terrain_shapes.ground_under(robot)
     robot.base_height_m = float(height)
     place_base(robot, robot.base_height_m)
 
@@ -420,7 +426,8 @@ WORLD_COLLISION_GROUPS: Final = 30
 multiple of 30 share a bit and pass through each other (MuJoCo has 32 contact bits; bit 0 is the floor)."""
 
 
-def build_world(placements: list[Placement], mode: Mode, timestep_s: float | None = None) -> list[Robot]:
+def build_world(placements: list[Placement], mode: Mode, timestep_s: float | None = None,
+                terrain: Terrain | None = None) -> list[Robot]:
     """Compile several robots into ONE model (one floor, one MjData), each under its own name prefix.
 
     Robots touch each other and the floor, but not themselves (as `build` with self_collision off):
@@ -450,6 +457,8 @@ def build_world(placements: list[Placement], mode: Mode, timestep_s: float | Non
             floor = prepared.spec.geom(FLOOR_NAME)
             world.worldbody.add_geom(name=FLOOR_NAME, type=floor.type, size=floor.size, friction=floor.friction,
                                      rgba=floor.rgba, contype=FLOOR_BIT, conaffinity=FLOOR_BIT | on_floor)
+            if terrain is not None:
+                terrain_shapes.add_to_spec(world, terrain, FLOOR_BIT, FLOOR_BIT | on_floor, list(floor.friction))
             world.worldbody.add_light(name="sun", pos=[0.0, 0.0, 4.0], dir=[0.0, 0.0, -1.0],
                                       type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
         for option in ("timestep", "integrator", "gravity"):  # the world's options: no attach conflict

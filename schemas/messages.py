@@ -408,6 +408,8 @@ class RobotInfo(Message, frozen=True, tag="robot_info", kw_only=True):
     episode: str = ""
     """The episode (SimStatus.episode) this description was given in: a client that learns the robot
     here knows from the first SimStatus whether the sim reset meanwhile."""
+    terrain: Terrain | None = None
+    """The ground the robot stands on (`zensim sim --terrain`, a world file's `[terrain]`); null: the flat floor."""
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)
@@ -524,6 +526,173 @@ class WorldInfo(Message, frozen=True, tag="world_info", kw_only=True):
     """The world's id: its own verbs are under zensim/{world}/world/."""
     robots: Annotated[tuple[WorldRobot, ...], msgspec.Meta(max_length=MAX_WORLD_ROBOTS)]
     """Every robot of the world, in the world file's order."""
+    terrain: Terrain | None = None
+    """The world's ground (the world file's `[terrain]`, or `--terrain`); null: the flat floor."""
+
+
+# --- terrain: the ground a robot stands on (zensim sim --terrain, a world file's [terrain]) -------------
+
+MAX_TERRAIN_EXTENT_M = 500.0
+"""Every terrain coordinate lies within this of the world's origin, m."""
+MAX_FEATURE_SIZE_M = 100.0
+"""Largest length, width or height of one terrain feature, m."""
+MAX_TERRAIN_FEATURES = 64
+"""Most features one terrain lists."""
+MAX_TERRAIN_BLOCKS = 4096
+"""Most solid blocks (stair steps, stepping stones, boxes) of one terrain together."""
+MAX_HEIGHTFIELD_CELLS = 65_536
+"""Most height-field cells of one terrain, every rough patch together (256 x 256: 12.8 m square at 5 cm)."""
+MAX_STAIRS = 100
+"""Most steps of one flight of stairs."""
+
+Coord = Annotated[float, msgspec.Meta(ge=-MAX_TERRAIN_EXTENT_M, le=MAX_TERRAIN_EXTENT_M)]
+"""A terrain coordinate, m, world frame."""
+Size = Annotated[float, msgspec.Meta(gt=0, le=MAX_FEATURE_SIZE_M)]
+"""A positive length, m."""
+Heading = Annotated[float, msgspec.Meta(ge=-360, le=360)]
+"""A heading, degrees about the world's z (0 faces +x, 90 faces +y)."""
+
+
+class Slope(Message, frozen=True, tag="slope", kw_only=True):
+    """An incline rising `angle_deg` along `direction_deg`, then an optional flat top; a wall at its far end."""
+
+    angle_deg: Annotated[float, msgspec.Meta(gt=0, le=60)]
+    """Incline, degrees above the horizontal."""
+    length_m: Size
+    """Horizontal run of the incline, m: it rises length_m * tan(angle_deg)."""
+    width_m: Size = 2.0
+    """Width across the incline, m."""
+    top_m: Annotated[float, msgspec.Meta(ge=0, le=MAX_FEATURE_SIZE_M)] = 0.0
+    """Length of the flat top after the incline, m (0: none)."""
+    at: tuple[Coord, Coord] = (0.0, 0.0)
+    """Middle of the incline's foot (where it leaves the floor), m, world x, y."""
+    direction_deg: Heading = 0.0
+    """Uphill heading."""
+
+    def __post_init__(self) -> None:
+        _check_finite("slope", (self.angle_deg, self.length_m, self.width_m, self.top_m, *self.at, self.direction_deg))
+        rise = self.length_m * math.tan(math.radians(self.angle_deg))
+        if rise > MAX_FEATURE_SIZE_M:
+            raise ValueError(f"a slope of {self.angle_deg:g} deg over {self.length_m:g} m rises {rise:.4g} m "
+                             f"(at most {MAX_FEATURE_SIZE_M:g})")
+
+
+class Stairs(Message, frozen=True, tag="stairs", kw_only=True):
+    """A flight of `count` steps and a landing at the top: going up along `direction_deg`, or (`down`) the
+    landing first and the steps going down from it to the floor."""
+
+    step_height_m: Annotated[float, msgspec.Meta(gt=0, le=1)]
+    """Rise of each step, m."""
+    step_depth_m: Annotated[float, msgspec.Meta(ge=0.01, le=10)]
+    """Tread of each step along the direction, m."""
+    count: Annotated[int, msgspec.Meta(ge=1, le=MAX_STAIRS)]
+    """Number of rises: the landing stands count * step_height_m high."""
+    way: Literal["up", "down"] = "up"
+    """up: steps first, then the landing; down: the landing first, then the steps down."""
+    width_m: Size = 2.0
+    """Width across the flight, m."""
+    landing_m: Annotated[float, msgspec.Meta(ge=0, le=MAX_FEATURE_SIZE_M)] = 1.0
+    """Length of the landing at the top, m."""
+    at: tuple[Coord, Coord] = (0.0, 0.0)
+    """Middle of the flight's near edge (the first step, or the landing when down), m, world x, y."""
+    direction_deg: Heading = 0.0
+    """The heading the flight runs along."""
+
+    def __post_init__(self) -> None:
+        _check_finite("stairs", (self.step_height_m, self.step_depth_m, self.width_m, self.landing_m, *self.at,
+                                 self.direction_deg))
+
+
+class RoughGround(Message, frozen=True, tag="rough", kw_only=True):
+    """A patch of rough ground: a height field with a random height in [0, amplitude_m] at each grid point
+    (seeded: the same seed gives the same ground), at floor level along its border."""
+
+    size_m: tuple[Size, Size]
+    """Extent along world x and y, m."""
+    amplitude_m: Annotated[float, msgspec.Meta(ge=0.001, le=1)]
+    """Highest bump, m."""
+    cell_m: Annotated[float, msgspec.Meta(ge=0.01, le=10)]
+    """Grid spacing, m (rounded so that whole cells fill size_m)."""
+    seed: Annotated[int, msgspec.Meta(ge=0, le=2**63 - 1)] = 0
+    """Seed of the heights."""
+    at: tuple[Coord, Coord] = (0.0, 0.0)
+    """Centre of the patch, m, world x, y."""
+
+    def cells(self) -> tuple[int, int]:
+        """Grid cells along x and y (at least 2 each, so the patch has an inner grid point)."""
+        return tuple(max(2, round(size / self.cell_m)) for size in self.size_m)  # type: ignore[return-value]
+
+    def __post_init__(self) -> None:
+        _check_finite("rough", (*self.size_m, self.amplitude_m, self.cell_m, *self.at))
+        nx, ny = self.cells()
+        if nx * ny > MAX_HEIGHTFIELD_CELLS:
+            raise ValueError(f"rough ground of {nx} x {ny} cells: at most {MAX_HEIGHTFIELD_CELLS} cells "
+                             "(make cell_m larger or size_m smaller)")
+
+
+class SteppingStones(Message, frozen=True, tag="stones", kw_only=True):
+    """A grid of square stones standing `height_m` above the floor, `gap_m` apart: rows along
+    `direction_deg`, columns across it."""
+
+    rows: Annotated[int, msgspec.Meta(ge=1, le=1000)]
+    """Stones along the direction."""
+    columns: Annotated[int, msgspec.Meta(ge=1, le=1000)] = 1
+    """Stones across it."""
+    stone_m: Annotated[float, msgspec.Meta(ge=0.01, le=10)] = 0.3
+    """Side of each (square) stone, m."""
+    gap_m: Annotated[float, msgspec.Meta(ge=0, le=10)] = 0.1
+    """Gap between neighbouring stones, m."""
+    height_m: Annotated[float, msgspec.Meta(gt=0, le=10)] = 0.1
+    """Height of the stones' tops above the floor, m."""
+    at: tuple[Coord, Coord] = (0.0, 0.0)
+    """Middle of the grid's near edge, m, world x, y."""
+    direction_deg: Heading = 0.0
+    """The heading the rows run along."""
+
+    def __post_init__(self) -> None:
+        _check_finite("stones", (self.stone_m, self.gap_m, self.height_m, *self.at, self.direction_deg))
+
+
+class TerrainBox(Message, frozen=True, tag="box", kw_only=True):
+    """A solid box at a given pose."""
+
+    size_m: tuple[Size, Size, Size]
+    """Edge lengths along the box's own x, y, z, m."""
+    pos: tuple[Coord, Coord, Coord]
+    """Centre, m, world frame."""
+    rpy_deg: tuple[Heading, Heading, Heading] = (0.0, 0.0, 0.0)
+    """Orientation: roll about x, pitch about y, yaw about z (applied in that order, world axes), degrees."""
+
+    def __post_init__(self) -> None:
+        _check_finite("box", (*self.size_m, *self.pos, *self.rpy_deg))
+
+
+TerrainFeature = Slope | Stairs | RoughGround | SteppingStones | TerrainBox
+"""One feature of a terrain, told apart by its `type`."""
+
+
+class Terrain(Message, frozen=True, tag="terrain", kw_only=True):
+    """The ground around the robot: the flat floor (z = 0) and the features on it. No feature: flat."""
+
+    features: Annotated[tuple[TerrainFeature, ...], msgspec.Meta(max_length=MAX_TERRAIN_FEATURES)] = ()
+    """The features, each on the floor; they may overlap (the higher surface is the ground)."""
+
+    def __post_init__(self) -> None:
+        blocks = cells = 0
+        for feature in self.features:
+            if isinstance(feature, Stairs):
+                blocks += feature.count
+            elif isinstance(feature, SteppingStones):
+                blocks += feature.rows * feature.columns
+            elif isinstance(feature, TerrainBox):
+                blocks += 1
+            elif isinstance(feature, RoughGround):
+                nx, ny = feature.cells()
+                cells += nx * ny
+        if blocks > MAX_TERRAIN_BLOCKS:
+            raise ValueError(f"the terrain has {blocks} steps, stones and boxes: at most {MAX_TERRAIN_BLOCKS}")
+        if cells > MAX_HEIGHTFIELD_CELLS:
+            raise ValueError(f"the terrain's rough ground has {cells} cells in all: at most {MAX_HEIGHTFIELD_CELLS}")
 
 
 # --- edge adapters ------------------------------------------------------------

@@ -307,7 +307,8 @@ def build_sim(settings: ResimSettings, recording: Recording, mode: str) -> Simul
         raise ValueError("the recording holds no info/robot: start `zensim record` while the sim runs")
     files = robot_files(None if settings.urdf else settings.robot, urdf=settings.urdf, control=settings.control)
     sim = Simulation(files, mode, Limits(max_kp=settings.max_kp, max_kd=settings.max_kd),  # type: ignore[arg-type]
-                     watchdog_timeout_s=info.watchdog_timeout_s, timestep_s=info.timestep_s)
+                     watchdog_timeout_s=info.watchdog_timeout_s, timestep_s=info.timestep_s,
+                     terrain=info.terrain)  # the recorded ground: the same run needs the same terrain
     sim.watchdog_enabled = False  # wall-clock silences are not in the recording
     if tuple(sim.robot.joint_names) != tuple(info.joint_names):
         raise ValueError(f"the recording is of {info.model} with other joints than {sim.robot.name}; "

@@ -42,6 +42,7 @@ from zensim.schemas import (
     ResetRequest,
     RobotInfo,
 )
+from zensim.schemas.messages import Terrain
 
 from .mjdata import actuator_index, actuator_values, base_tilt_rad, read_base, read_imu, reset, write_actuators
 
@@ -141,6 +142,7 @@ class Simulation:
         timestep_s: physics step; None keeps the control file's.
         shared: a robot of a world (services/sim/world.py): its Robot in the world's model, the world's
             MjData, and the world's step (which steps every robot at once). None: a world of its own.
+        terrain: the ground (robots/terrain.py), built into the model and described in info/robot; None: flat.
     """
 
     def __init__(
@@ -151,8 +153,10 @@ class Simulation:
         watchdog_timeout_s: float,
         timestep_s: float | None = None,
         shared: tuple[Robot, mujoco.MjData, Callable[[int], None]] | None = None,
+        terrain: Terrain | None = None,
     ) -> None:
         self.files = files
+        self.terrain = terrain
         self._shared = shared
         self.limits = limits
         self.watchdog_timeout_s = watchdog_timeout_s
@@ -180,7 +184,7 @@ class Simulation:
                                    "restart the world in another mode")
             robot, self.data = self._shared[0], self._shared[1]
         else:
-            robot = build(self.files, mode)
+            robot = build(self.files, mode, self.terrain)
             if self._timestep_override:
                 robot.model.opt.timestep = self._timestep_override
             self.data = mujoco.MjData(robot.model)
@@ -232,7 +236,7 @@ class Simulation:
         if request.mode is not None and request.mode != self.mode:
             if self._shared is not None:
                 raise CommandError(f"a robot of a world stays in the world's mode ({self.mode})")
-            other = build(self.files, request.mode)  # checked against the new mode before switching
+            other = build(self.files, request.mode, self.terrain)  # checked against the new mode before switching
             self._check_height(request, other)
             self._load(request.mode)
             q = self._pose_from(request)
@@ -525,6 +529,7 @@ class Simulation:
             watchdog_timeout_s=self.watchdog_timeout_s,
             mesh_paths=tuple(robot.mesh_files),
             keys=keys.table(),
+            terrain=self.terrain,
         )
 
 

@@ -47,6 +47,7 @@ from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, is_wildcard, payload_of, reply
 from zensim.robots import robot_files
 from zensim.robots.builder import Robot, build
+from zensim.robots.terrain import TerrainError, load_terrain
 from zensim.schemas import topics
 from zensim.schemas import (
     Codec,
@@ -255,7 +256,7 @@ class SimService:
         self._robots_by_mode[sim.mode] = sim.robot
         for mode in MODES:
             if mode not in self._robots_by_mode:
-                self._robots_by_mode[mode] = build(sim.files, mode)
+                self._robots_by_mode[mode] = build(sim.files, mode, sim.terrain)
         info = sim.robot_info(self.keys, self.settings.state_rate_hz, self.settings.status_rate_hz, self._robots_by_mode)
         # One value, replaced whole: a query answered meanwhile gets the old mode with the old
         # episode or the new with the new, never a mix.
@@ -635,6 +636,10 @@ def load_simulation(settings: SimSettings) -> Simulation:
     Raises:
         StartupError: a missing or broken URDF, mesh or control file; the text names the file.
     """
+    try:
+        terrain = load_terrain(settings.terrain) if settings.terrain else None
+    except TerrainError as exc:
+        raise StartupError(f"terrain (--terrain / ZENSIM_SIM_TERRAIN): {bounded(str(exc), 400)}") from None
     # An explicit URDF stands alone: it must not pick up the bundled G1's control file.
     try:
         files = robot_files(None if settings.urdf else settings.robot, urdf=settings.urdf, control=settings.control)
@@ -644,6 +649,7 @@ def load_simulation(settings: SimSettings) -> Simulation:
             Limits(max_kp=settings.max_kp, max_kd=settings.max_kd),
             watchdog_timeout_s=settings.watchdog_timeout_s,
             timestep_s=settings.timestep_s,
+            terrain=terrain,
         )
     except (OSError, ValueError) as exc:
         which = "--urdf / ZENSIM_SIM_URDF" if settings.urdf else "--robot / ZENSIM_SIM_ROBOT"

@@ -50,6 +50,8 @@ class SimSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     """realtime (paced by rtf) or lockstep (each motor command advances lockstep_steps, then time stands still)."""
     lockstep_steps: Annotated[int, msgspec.Meta(ge=1, le=100_000)] = 10
     """Lockstep: physics steps each motor command advances (10 = 20 ms at the G1's 2 ms step)."""
+    terrain: str | None = None
+    """A terrain file (TOML: slopes, stairs, rough ground, stepping stones, boxes; services/sim/README.md); default flat."""
 
     def __post_init__(self) -> None:
         zero_or_at_least(self.rtf, 0.01, "rtf")

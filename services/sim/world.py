@@ -41,6 +41,7 @@ from zensim.common.wire import Refusals, decode_input, payload_of
 from zensim.common.wire import reply as send
 from zensim.robots import robot_files
 from zensim.robots.builder import Placement, build_world
+from zensim.robots.terrain import TerrainError, load_terrain, terrain_from_table
 from zensim.schemas import (
     Codec,
     CtlReply,
@@ -61,7 +62,7 @@ from zensim.schemas import (
 from zensim.schemas.bounds import vector_cap_bytes
 from zensim.schemas.codec import Format
 from zensim.schemas.keys import check_robot_id
-from zensim.schemas.messages import Message, Mode
+from zensim.schemas.messages import Message, Mode, Terrain
 
 from .physics import MAX_BASE_RISE_M, CommandError, MAX_BASE_SPEED_M_S, Limits, Simulation, broken_warning
 from .requests import Request, Requests, run_guarded
@@ -103,6 +104,8 @@ class WorldFile(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     robots: Annotated[list[RobotEntry], msgspec.Meta(min_length=1, max_length=256)]
     id: str = "world"
+    terrain: Terrain | None = None
+    """The `[terrain]` table: the world's ground (robots/terrain.py); none: the flat floor."""
 
 
 def read_world_file(path: str) -> WorldFile:
@@ -112,7 +115,10 @@ def read_world_file(path: str) -> WorldFile:
         StartupError: unreadable, malformed, unknown fields, duplicate or bad ids, non-finite spawns.
     """
     try:
-        world = msgspec.toml.decode(Path(path).read_bytes(), type=WorldFile)
+        text = Path(path).read_bytes()
+        world = msgspec.toml.decode(text, type=WorldFile)
+        if world.terrain is not None:  # checked as a terrain file is: an unknown key in it is refused
+            terrain_from_table(msgspec.toml.decode(text)["terrain"])
         ids = [world.id, *(entry.id for entry in world.robots)]
         for robot_id in ids:
             check_robot_id(robot_id)
@@ -129,8 +135,9 @@ def read_world_file(path: str) -> WorldFile:
 class World:
     """One MjModel/MjData holding every robot, and the Simulation of each (which share the data)."""
 
-    def __init__(self, world_file: WorldFile, base: Path, settings: SimSettings) -> None:
+    def __init__(self, world_file: WorldFile, base: Path, settings: SimSettings, terrain: Terrain | None = None) -> None:
         self.id = world_file.id
+        self.terrain = terrain
         self.entries = tuple(world_file.robots)
         placements = []
         try:
@@ -139,7 +146,7 @@ class World:
                 control = None if entry.control is None else str(base / entry.control)
                 files = robot_files(None if urdf else (entry.robot or "unitree_g1"), urdf=urdf, control=control)
                 placements.append(Placement(f"{entry.id}/", files, entry.xy, math.radians(entry.yaw_deg), entry.mode))
-            robots = build_world(placements, settings.mode, settings.timestep_s)
+            robots = build_world(placements, settings.mode, settings.timestep_s, terrain)
         except (OSError, ValueError) as exc:
             raise StartupError(f"cannot build the world ({settings.world}): {bounded(str(exc), 400)}") from None
         self.model = robots[0].model
@@ -151,7 +158,7 @@ class World:
         self.sims: dict[str, Simulation] = {}
         for entry, placement, robot in zip(world_file.robots, placements, robots):
             self.sims[entry.id] = Simulation(placement.files, robot.mode, limits, settings.watchdog_timeout_s,
-                                             shared=(robot, self.data, self.step))
+                                             shared=(robot, self.data, self.step), terrain=terrain)
         self._sims = tuple(self.sims.values())
         for sim in self._sims:  # lockstep: time stands still between advances, so silence is no fault
             sim.watchdog_enabled = settings.clock == "realtime"
@@ -228,14 +235,22 @@ def world_info(world: World, robots: list[SimService]) -> WorldInfo:
     """world/info's answer: the world's id and, for each robot in file order, its model, mode and spawn."""
     return WorldInfo(world=world.id, robots=tuple(
         WorldRobot(robot=entry.id, model=robot._info.model, mode=robot._info.mode, xy=entry.xy, yaw_deg=entry.yaw_deg)
-        for entry, robot in zip(world.entries, robots)))
+        for entry, robot in zip(world.entries, robots)), terrain=world.terrain)
 
 
 def load_world(settings: SimSettings) -> World:
     """Read the world file the settings name and build it (before the session: a bad file fails fast)."""
     assert settings.world is not None
     world_file = read_world_file(settings.world)
-    world = World(world_file, Path(settings.world).resolve().parent, settings)
+    terrain = world_file.terrain
+    if settings.terrain:
+        if terrain is not None:
+            raise StartupError(f"the world file {settings.world} has a [terrain] table and --terrain names another: give one")
+        try:
+            terrain = load_terrain(settings.terrain)
+        except TerrainError as exc:
+            raise StartupError(f"terrain (--terrain / ZENSIM_SIM_TERRAIN): {bounded(str(exc), 400)}") from None
+    world = World(world_file, Path(settings.world).resolve().parent, settings, terrain)
     logger.info("world %s: %d robots (%s), %d bodies, mode %s, step %.4f s", world.id, len(world.sims),
                 ", ".join(world.sims), world.model.nbody, world.mode, world.timestep_s)
     return world

@@ -11,7 +11,7 @@ Reads (under each robot's `zensim/{robot}/`):
     state/joints, cmd/motors, state/targets, state/applied (every sample): the plot panel (plots.py).
     alive/* (liveliness): which services are up; `alive/sim` appearing triggers a description fetch.
     zensim/@router/alive (liveliness): the router badge, whatever robot id the router was started with.
-    info/robot, info/urdf, info/mesh/{path} (gets): the description, fetched again after each sim start.
+    info/robot, info/urdf, info/mesh/{path} (gets): the description (and its terrain, terrain.py), fetched again after each sim start.
     zensim/{world}/world/info (get, with --world): the world's robots, fetched again after its sim restarts.
 Writes (under the selected robot's `zensim/{robot}/`):
     cmd/joints (JointTargets): slider moves.
@@ -62,10 +62,12 @@ from zensim.schemas import (
     short_repr,
 )
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, STATE_CAP_BYTES
+from zensim.schemas.messages import Terrain
 
 from . import fetch, panel, plots, scene, world
 from .feed import RobotFeed
 from .settings import VizSettings
+from .terrain import terrain_commands
 from .access import Guard
 from .web import Client, Hub, make_app
 
@@ -186,11 +188,12 @@ class VizService:
     def _fetch_robot(self) -> None:
         """One robot's description, drawn once the loop installs it."""
         feed = self.feeds[self.settings.robot_id]
-        drawing = self._fetch_description(feed)
+        drawing, terrain = self._fetch_description(feed)
         shown = Shown(feed, drawing, panel.JointLimits(drawing.joint_names, drawing.lower, drawing.upper))
-        self.loop.add_callback(self._install, [shown], drawing.commands, drawing.meta)
+        self.loop.add_callback(self._install, [shown], drawing.commands + terrain_commands(terrain), drawing.meta)
 
-    def _fetch_description(self, feed: RobotFeed) -> scene.Drawing:
+    def _fetch_description(self, feed: RobotFeed) -> tuple[scene.Drawing, Terrain | None]:
+        """The robot's drawing, and the terrain its sim stands it on (info/robot's; None: flat or no sim)."""
         self.description_state = "fetching the description"
         started = time.monotonic()
         keys = feed.keys
@@ -221,7 +224,7 @@ class VizService:
         logger.info("description of %s from %s: %d links, %d joints, %d meshes (%.0f kB) in %.2f s",
                     drawing.robot.name, source, len(drawing.kin.links), len(drawing.joint_names), len(meshes),
                     sum(map(len, meshes.values())) / 1e3, time.monotonic() - started)
-        return drawing
+        return drawing, info.terrain if info else None
 
     def _fetch_world(self) -> None:
         """The world's robots and their descriptions; a feed for each (kept for robots already shown)."""

@@ -28,6 +28,7 @@ from zensim.schemas import Codec, Keys, WorldInfo, WorldRobot, check_robot_id
 from zensim.schemas.bounds import INFO_CAP_BYTES
 
 from . import fetch, scene
+from .terrain import terrain_commands
 
 logger = logging.getLogger(__name__)
 
@@ -127,6 +128,7 @@ def fetch_world(get: fetch.Getter, world_id: str, ghost: bool) -> WorldScene:
     commands = [scene.pack_command({"type": "delete", "path": f"/{path}"}) for path in ("robots", "ghosts")]
     for _, drawing in drawings:
         commands += drawing.commands
+    commands += terrain_commands(info.terrain)
     meta = {
         "name": world_id,
         "source": f"zenoh {keys.world_info}",
