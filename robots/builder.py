@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from zensim.robots import RobotFiles
-from zensim.schemas.messages import Mode, Terrain
+from zensim.schemas.messages import MODES, Mode, Terrain
 from zensim.robots.control import DEFAULT_ARMATURE_KG_M2, ControlConfig, ModeConfig, first_match, load_control
 from zensim.robots.description import Description, Joint, RobotModelError, parse_urdf
 from zensim.robots.mesh_files import resolve_mesh
@@ -33,7 +33,6 @@ __all__ = ["MODES", "Placement", "Robot", "RobotModelError", "build", "build_wor
 
 logger = logging.getLogger(__name__)
 
-MODES: Final[tuple[Mode, ...]] = ("floating", "fixed")
 
 FREE_JOINT_NAME: Final = "floating_base"
 FLOOR_NAME: Final = "floor"

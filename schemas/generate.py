@@ -25,7 +25,7 @@ from . import messages
 from .messages import WIRE_TYPES, Message
 from .topics import protocol_table, role_table, service_key_table
 
-SCHEMA_DIR = Path(__file__).parent / "jsonschema"
+SCHEMA_DIR = Path(__file__).resolve().parent / "jsonschema"  # the checkout's folder, not the install's link to it
 CHECKOUT = Path(__file__).resolve().parent.parent
 PROTOCOL_DOC = CHECKOUT / "docs" / "protocol.md"
 TABLE_BEGIN, TABLE_END = "<!-- topics:begin -->\n", "<!-- topics:end -->\n"

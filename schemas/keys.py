@@ -17,8 +17,13 @@ ROOT: Final = "zensim"
 DEFAULT_ROBOT_ID: Final = "g1"
 ROBOT_ID_PATTERN: Final = re.compile(r"[a-z0-9_-]+")
 SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree", "ros1", "ros2", "loco")
-"""Every service that declares `alive/{service}`; `zensim up` starts the first four in this order (the
-unitree adapter in place of the bridge with `--unitree`, the ROS 1 gateway with `--ros1`, the ROS 2 face last with `--ros2`)."""
+"""Every service that declares `alive/{service}`, each a `zensim {service}` command with a role of its own;
+`zensim up` and compose.yaml start those not optional, in this order. The one list of services: the rest
+is derived from it or checked against it (tests/test_facts.py)."""
+OPTIONAL_SERVICES: Final = ("unitree", "ros1", "ros2", "loco")
+"""Started only when asked: `zensim up --unitree` (the adapter, with the walking controller in place of
+the bridge), `--loco` (the walking controller in place of the bridge), `--ros1` (the ROS 1 gateway) or
+`--ros2` (the ROS 2 face); compose profiles of the same names."""
 
 CTL_VERBS: Final = tuple(t.key.split("/", 1)[1] for t in TOPICS if t.key.startswith("ctl/"))
 """The control queryables' verbs (`ctl/{verb}`), from the registry."""

@@ -19,7 +19,7 @@ joint count, limits) belong to the service that knows the robot.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Annotated, Final, Literal, get_args
 
 import msgspec
 
@@ -27,6 +27,8 @@ SCHEMA_VERSION = 1
 """Bumped only for a breaking change, which also gets new keys."""
 
 Mode = Literal["floating", "fixed"]
+MODES: Final[tuple[Mode, ...]] = get_args(Mode)
+"""Every mode, in the order tools offer them (the first is the default)."""
 Vector = tuple[float, ...]
 
 MAX_STEPS_PER_REQUEST = 100_000

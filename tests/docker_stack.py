@@ -11,10 +11,11 @@ import time
 from pathlib import Path
 
 from support import REPO
+from zensim.schemas import keys
 
 BASE_IMAGE = "zensim-base:bookworm"
 CA_DIR = Path("/usr/local/share/ca-certificates")
-SERVICES = ("router", "sim", "bridge", "viz")
+SERVICES = tuple(s for s in keys.SERVICES if s not in keys.OPTIONAL_SERVICES)  # compose.yaml's default ones
 
 
 class DockerUnavailable(RuntimeError):

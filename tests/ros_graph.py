@@ -14,10 +14,16 @@ import subprocess
 import sys
 import xmlrpc.client
 from pathlib import Path
+from typing import Any
 
 import yaml
 
 from support import REPO, Service, free_port, plain_client, wait_for
+
+
+def master_proxy(uri: str) -> Any:
+    """An XML-RPC client of a ROS master; its replies are untyped nested lists, so it is typed Any."""
+    return xmlrpc.client.ServerProxy(uri)
 
 DEBIAN_ROS_PYTHON = "/usr/lib/python3/dist-packages"
 """Where Debian's python3-rospy lives; the project's venv does not see it by itself (docs/ros.md)."""
@@ -57,7 +63,7 @@ class Roscore:
     def pid(self) -> int | None:
         """The master's pid, or None while it does not answer."""
         try:
-            with xmlrpc.client.ServerProxy(self.uri) as master:
+            with master_proxy(self.uri) as master:
                 code, _, pid = master.getPid("/test")
             return pid if code == 1 else None
         except OSError:
@@ -65,18 +71,18 @@ class Roscore:
 
     def param(self, name: str):
         """A parameter's value on this master (xmlrpc, no rospy node needed), or None when unset."""
-        with xmlrpc.client.ServerProxy(self.uri) as master:
+        with master_proxy(self.uri) as master:
             code, _, value = master.getParam("/test", name)
         return value if code == 1 else None
 
     def publishers(self, topic: str) -> list[str]:
         """The nodes that publish `topic` according to this master."""
-        with xmlrpc.client.ServerProxy(self.uri) as master:
+        with master_proxy(self.uri) as master:
             _, _, (publishers, _subscribers, _services) = master.getSystemState("/test")
         return next((nodes for name, nodes in publishers if name == topic), [])
 
     def subscribers(self, topic: str) -> list[str]:
-        with xmlrpc.client.ServerProxy(self.uri) as master:
+        with master_proxy(self.uri) as master:
             _, _, (_publishers, subscribers, _services) = master.getSystemState("/test")
         return next((nodes for name, nodes in subscribers if name == topic), [])
 

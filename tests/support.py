@@ -11,7 +11,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 T = TypeVar("T")
 
@@ -117,6 +117,16 @@ def descendants(pid: int) -> list[tuple[int, int | None]]:
     return [(child, _start_time(child)) for child in found]
 
 
+def wait_subscribed(session, key: str, timeout_s: float, what: str) -> None:
+    """Wait until some subscriber on the network matches `key` (zenoh's matching status): a put made
+    after this reaches it, where one made before the subscription was known may be lost."""
+    publisher = session.declare_publisher(key)
+    try:
+        wait_for(lambda: publisher.matching_status.matching, timeout_s, what)
+    finally:
+        publisher.undeclare()
+
+
 class Latest:
     """Subscribes to one key and keeps the newest decoded message (and how many came)."""
 
@@ -125,9 +135,9 @@ class Latest:
 
         from zensim.schemas import Codec
 
-        self._codec = Codec(message_type)
+        self._codec: Codec[Any] = Codec(message_type)
         self._lock = threading.Lock()
-        self.value = None
+        self.value: Any = None  # the newest message, of `message_type`
         self.count = 0
         self.history: list = []
         self.keep_history = False

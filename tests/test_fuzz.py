@@ -19,6 +19,7 @@ import os
 import random
 import time
 from pathlib import Path
+from typing import Any
 
 import msgspec
 
@@ -103,8 +104,9 @@ class Corpus:
                             b"0x10", b'"0.5"', b"9" * 400]) for _ in range(PER_CATEGORY * 2)]
 
     def requests(self, verb: str) -> list[bytes]:
-        valid = {"reset": {"names": [self.joints[0]], "q": [0.1], "base_height_m": 0.8},
-                 "step": {"n": 1}, "mode": {"mode": "floating"}}.get(verb, {})
+        valid_by_verb: dict[str, dict[str, Any]] = {"reset": {"names": [self.joints[0]], "q": [0.1], "base_height_m": 0.8},
+                                                    "step": {"n": 1}, "mode": {"mode": "floating"}}
+        valid = valid_by_verb.get(verb, {})
         out = self.structural(valid)
         rng = self.rng
         for _ in range(PER_CATEGORY):

@@ -385,9 +385,10 @@ class TestFloods:
         wait_alive(zsession, keys, "bridge")
         wait_for(lambda: statuses and not statuses[-1].watchdog, 10, "the bridge's commands arriving")
         seconds = 5.0
+        rejected_before = statuses[-1].rejected_commands
         flooder = subprocess.Popen([sys.executable, "-c", FLOODER, router_endpoint, keys.root, str(seconds), "4000"],
                                    stdout=subprocess.PIPE, text=True)
-        time.sleep(0.5)
+        wait_for(lambda: statuses[-1].rejected_commands > rejected_before, 10, "the flood reaching the sim")
         start, first_status = time.monotonic(), len(statuses)
         out, _ = flooder.communicate(timeout=seconds + 20)
         end = time.monotonic()

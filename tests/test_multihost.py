@@ -268,7 +268,7 @@ def test_cut_sim_link_recovers_without_restart(
     assert abs(held - default_q) > 0.2, "the held target must differ from the watchdog's pose"
     put_target(probe, dep.robot_id, held)
     wait_for(lambda: tracks(probe, index, held), 10, f"{JOINT} at {held} before the cut")
-    seq_before = probe.latest_state()["seq"]  # type: ignore[index]
+    seq_before = probe.latest_state()["seq"]
 
     cut_at = time.monotonic()
     net.cut("sim", how)

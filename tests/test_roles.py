@@ -245,3 +245,55 @@ def test_the_conformance_check_catches_an_undeclared_publisher(tmp_path: Path, r
         f"bridge: publisher on {Keys(robot_id).sim_status!r} is not in its role"]
     assert violations(role("sim"), records, robot_id) == [
         f"sim: publisher on {Keys(robot_id).motors!r} is not in its role"]
+
+
+def test_a_world_sim_declares_only_what_the_sim_role_lists(start_service, zsession, robot_id: str,
+                                                            tmp_path: Path) -> None:
+    """`zensim sim --world`: the world's verbs and token on the world's id, each robot's keys as for a robot alone."""
+    audit_dir = tmp_path / "audit"
+    audit_dir.mkdir()
+    ids = {"world": robot_id + "w", "a": robot_id + "a", "b": robot_id + "b"}
+    (tmp_path / "world.toml").write_text(f'id = "{ids["world"]}"\n[[robots]]\nid = "{ids["a"]}"\n'
+                                         f'[[robots]]\nid = "{ids["b"]}"\nxy = [1.5, 0]\n')
+    world = start_service("sim", "--world", str(tmp_path / "world.toml"), "--mode", "fixed", "--clock", "lockstep",
+                          env=audit_env(audit_dir))
+    wait_for(lambda: list(zsession.liveliness().get(Keys(ids["world"]).alive("world"), timeout=1.0)), 120,
+             "the world up")
+    world.stop(15)
+    by_root: dict[str, list[dict]] = {}
+    for record in audits(audit_dir)["sim"]:
+        by_root.setdefault(record["key"].split("/")[1], []).append(record)
+    assert set(by_root) - {"@router"} == set(ids.values()), sorted(by_root)
+    wrong = [line for robot in ids.values() for line in violations(role("sim"), by_root[robot], robot)]
+    assert not wrong, "\n".join(wrong)
+    world_keys = {r["key"] for r in by_root[ids["world"]]}
+    assert {Keys(ids["world"]).world_advance, Keys(ids["world"]).alive("world")} <= world_keys, world_keys
+    assert {Keys(robot).ctl("reset") for robot in (ids["a"], ids["b"])} <= {r["key"] for r in by_root[ids["a"]] + by_root[ids["b"]]}
+
+
+def test_the_ros1_gateway_declares_only_what_its_role_lists(start_service, zsession, robot_id: str,
+                                                             tmp_path: Path) -> None:
+    """`zensim ros1` with a real master: its startup declarations, and the puts a ROS controller topic makes."""
+    from ros_graph import Roscore
+
+    roscore = Roscore(tmp_path / "ros")
+    try:
+        audit_dir = tmp_path / "audit"
+        audit_dir.mkdir()
+        start_service("sim", "--mode", "fixed")
+        start_service("bridge")
+        gateway = start_service("ros1", "--mesh-http-port", "0", env={**roscore.env, **audit_env(audit_dir)})
+        wait_for(lambda: "ros1 gateway up" in gateway.log() or not gateway.alive(), 90, "the gateway to start")
+        assert gateway.alive(), gateway.log()
+        # A ROS controller command: the gateway puts it on the robot's cmd/joint/{joint}.
+        topic = f"/{robot_id}_description/left_elbow_joint_controller/command"
+        subprocess.run(["rostopic", "pub", "-1", topic, "std_msgs/Float64", "data: 0.3"], env={**os.environ, **roscore.env},
+                       capture_output=True, timeout=60, check=True)
+        assert gateway.stop(15) == 0, gateway.log()
+    finally:
+        roscore.stop()
+    records = audits(audit_dir)["ros1"]
+    assert not violations(role("ros1"), records, robot_id), "\n".join(violations(role("ros1"), records, robot_id))
+    uses = {r["use"] for r in records}
+    assert {"publisher", "subscriber", "querier", "token"} <= uses, uses
+    assert any(r["key"].startswith(f"zensim/{robot_id}/cmd/joint") for r in records if r["use"] == "publisher")

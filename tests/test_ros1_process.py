@@ -21,7 +21,7 @@ import xmlrpc.client
 
 import pytest
 
-from ros_graph import Roscore, Stack, import_rospy
+from ros_graph import Roscore, Stack, import_rospy, master_proxy
 from support import TWO_JOINT_ARM, Latest, ctl, free_port, plain_client, wait_for
 from zensim.robots.description import parse_urdf
 from zensim.ros1.mapping import mesh_references
@@ -206,7 +206,7 @@ def test_float64_and_gui_joint_states_move_the_sim_through_the_bridge(stack) -> 
 def test_bad_input_on_every_ros_topic_is_counted_not_applied_and_outputs_keep_their_rate(stack) -> None:
     joints = Latest(stack.session, KEYS.joints, JointState)
     status = Latest(stack.session, KEYS.ros1_status, Ros1Status)
-    forwarded = []
+    forwarded: list[object] = []  # zenoh samples
     zenoh_commands = [stack.session.declare_subscriber(key, forwarded.append)  # what the gateway puts for the bridge
                       for key in (KEYS.joint_targets, KEYS.joint_target_any)]
     names = robot_joint_names(stack.session)
@@ -352,7 +352,7 @@ def test_up_ros1_starts_roscore_and_the_gateway_and_ctrl_c_stops_them(tmp_path, 
                 return {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok is not None}
 
             wait_for(lambda: alive() >= {"router", "sim", "bridge", "ros1"}, 60, "the services and the gateway", 0.2)
-        with xmlrpc.client.ServerProxy(ros["ROS_MASTER_URI"]) as master:
+        with master_proxy(ros["ROS_MASTER_URI"]) as master:
             code, _, urdf = master.getParam("/test", "/robot_description")
             assert code == 1 and "<robot" in urdf
             _, _, (publishers, _, _) = master.getSystemState("/test")
@@ -362,7 +362,7 @@ def test_up_ros1_starts_roscore_and_the_gateway_and_ctrl_c_stops_them(tmp_path, 
         text = (tmp_path / "up.log").read_text()
         assert "ros1 exited with 0" in text and "roscore exited with 0" in text, text
         with pytest.raises(OSError):
-            with xmlrpc.client.ServerProxy(ros["ROS_MASTER_URI"]) as master:
+            with master_proxy(ros["ROS_MASTER_URI"]) as master:
                 master.getPid("/test")
     finally:
         if up.poll() is None:

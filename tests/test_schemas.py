@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from typing import cast, Any
 
 import msgspec
 import pytest
@@ -93,12 +94,13 @@ def test_walking_messages_refuse_what_no_robot_could_do() -> None:
             velocity.decode(json.dumps(bad).encode(), "application/json")
     with pytest.raises(DecodeError):
         velocity.decode(msgspec.msgpack.encode({"vx": float("nan")}), "application/msgpack")
-    for bad in ({"verb": "fly"}, {"verb": "walk", "fsm_id": 500}, {"fsm_id": 2**40}, {"balance_mode": 2}, {"x": 1}):
+    for bad_request in ({"verb": "fly"}, {"verb": "walk", "fsm_id": 500}, {"fsm_id": 2**40}, {"balance_mode": 2}, {"x": 1}):
         with pytest.raises(DecodeError):
-            request.decode(json.dumps(bad).encode(), "application/json")
-    for change in ({"weight": 1.5}, {"kp": [-1, 0]}, {"q": [0.1]}, {"names": ["a", "a"]}):
+            request.decode(json.dumps(bad_request).encode(), "application/json")
+    changes: list[dict[str, object]] = [{"weight": 1.5}, {"kp": [-1, 0]}, {"q": [0.1]}, {"names": ["a", "a"]}]
+    for change in changes:
         with pytest.raises(DecodeError):
-            arm.decode(json.dumps({**SAMPLES["arm_command"], **change}).encode(), "application/json")
+            arm.decode(json.dumps({**cast(dict, SAMPLES["arm_command"]), **change}).encode(), "application/json")
     assert velocity.decode(b"{}", "application/json").timeout_s == 0.5  # a bare stop, lapsing by itself
 
 
@@ -113,8 +115,8 @@ def test_every_wire_type_has_a_sample() -> None:
 @pytest.mark.parametrize("message_type", WIRE_TYPES, ids=tag)
 @pytest.mark.parametrize("fmt", ["msgpack", "json"])
 def test_round_trip(message_type: type, fmt: str) -> None:
-    codec = Codec(message_type)
-    message = msgspec.convert(SAMPLES[tag(message_type)], message_type)
+    codec: Codec[Any] = Codec(message_type)
+    message: Any = msgspec.convert(SAMPLES[tag(message_type)], message_type)
     assert codec.decode(codec.encode(message, fmt)) == message  # type: ignore[arg-type]
 
 

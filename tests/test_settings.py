@@ -87,6 +87,13 @@ class TestPerServiceNames:
         # The new name wins over the old one.
         assert load_settings(SimSettings, [], env={"ZENSIM_MODE": "fixed", "ZENSIM_SIM_MODE": "floating"}).mode == "floating"
 
+    def test_names_that_were_never_released_have_no_unprefixed_alias(self) -> None:
+        # compose's build switch ZENSIM_UNITREE=1 turned on `zensim up --unitree` through an invented alias.
+        assert load_settings(UpSettings, [], env={"ZENSIM_UNITREE": "1", "ZENSIM_ROS1": "1"}) == UpSettings()
+        assert load_settings(VizSettings, [], env={"ZENSIM_TOKEN": "guess", "ZENSIM_WORLD": "lab"}) == VizSettings()
+        assert load_settings(SimSettings, [], env={"ZENSIM_CLOCK": "lockstep"}).clock == "realtime"
+        assert "ZENSIM_UNITREE" not in env_names(UpSettings).values()
+
     @pytest.mark.parametrize("cls", [BridgeSettings, VizSettings])
     def test_a_name_two_services_read_differently_is_refused(self, cls: type) -> None:
         with pytest.raises(SettingsError) as info:

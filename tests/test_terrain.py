@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from typing import Any
 from pathlib import Path
 
 import msgspec
@@ -21,7 +22,7 @@ from zensim.schemas.messages import RoughGround, Terrain
 from zensim.sim.physics import Limits, Simulation
 
 TAN10 = math.tan(math.radians(10))
-COURSE = {"features": [
+COURSE: dict[str, Any] = {"features": [
     {"type": "slope", "angle_deg": 10, "length_m": 3, "width_m": 2, "top_m": 1, "at": [2, 0]},
     {"type": "stairs", "step_height_m": 0.12, "step_depth_m": 0.3, "count": 4, "at": [0, 3], "direction_deg": 90},
     {"type": "stairs", "step_height_m": 0.1, "step_depth_m": 0.25, "count": 3, "way": "down", "landing_m": 0.5,
@@ -90,7 +91,7 @@ class TestHeights:
         assert 0.0 <= grid.min() and grid.max() <= 0.05 and grid.max() > 0.04
         assert not grid[[0, -1], :].any() and not grid[:, [0, -1]].any(), "the border is not at floor level"
         rows, cols = np.meshgrid(np.arange(1, 15, 3), np.arange(1, 20, 3), indexing="ij")
-        points = [(-4 + 0.1 * c, -0.75 + 0.1 * r) for r, c in zip(rows.ravel(), cols.ravel())]
+        points = [(float(-4 + 0.1 * c), float(-0.75 + 0.1 * r)) for r, c in zip(rows.ravel(), cols.ravel())]
         np.testing.assert_allclose(heights(model, data, points), grid[rows.ravel(), cols.ravel()], atol=1e-6)
         # Between grid points MuJoCo's triangles interpolate: midway along x, the mean of the two neighbours.
         np.testing.assert_allclose(ground_at(model, data, -4 + 0.55, -0.75 + 0.5), (grid[5, 5] + grid[5, 6]) / 2,

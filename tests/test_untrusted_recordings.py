@@ -11,12 +11,13 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import msgspec
 import pytest
 from mcap.reader import make_reader
 
-from support import Latest, free_port, wait_for
+from support import Latest, free_port, wait_for, wait_subscribed
 from test_record_process import stop_recorder, zensim
 from zensim.mcapfile import ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter
 from zensim.robots import robot_files
@@ -44,7 +45,7 @@ class TestRecorderUnderHostileSamples:
         keys, path = Keys(robot_id), tmp_path / "nan.mcap"
         recorder = start_service("record", "-o", str(path))
         wait_for(lambda: "recording zensim/" in recorder.log(), 30, "the recorder to start")
-        time.sleep(0.5)
+        wait_subscribed(zsession, keys.joints, 10, "the recorder's subscription")
         codec = Codec(JointState)
         good = JointState(sim_time_s=1.0, seq=1, q=(0.1, 0.2), dq=(0.0, 0.0), tau=(0.0, 0.0))
         for q in ((float("nan"), 0.2), (float("inf"), 0.2)):
@@ -67,7 +68,7 @@ class TestRecorderUnderHostileSamples:
         keys, path = Keys(robot_id), tmp_path / "bounded.mcap"
         recorder = start_service("record", "-o", str(path), "--max-bytes", "200000")
         wait_for(lambda: "recording zensim/" in recorder.log(), 30, "the recorder to start")
-        time.sleep(0.5)
+        wait_subscribed(zsession, keys.joints, 10, "the recorder's subscription")
         codec = Codec(JointState)
         q = tuple(0.001 * i for i in range(29))
         deadline = time.monotonic() + 30
@@ -112,7 +113,7 @@ def write_recording(path: Path, robot_id: str, items: list[tuple[str, object]], 
         writer.finish()
 
 
-def lockstep_states(steps: int = 10, commands: int = 5) -> list[tuple[str, object]]:
+def lockstep_states(steps: int = 10, commands: int = 5) -> list[tuple[str, Any]]:
     """A short genuine lockstep run of the fixed-base G1: states, each command applied, the states after it."""
     sim = Simulation(robot_files("g1"), "fixed", Limits(max_kp=5000, max_kd=500), watchdog_timeout_s=0.5)
     sim.watchdog_enabled = False
@@ -144,8 +145,8 @@ class TestForgedRecordings:
     def test_forged_steps_and_far_times_finish_within_the_budget(self, tmp_path) -> None:
         items = lockstep_states()
         forged_command = AppliedCommand(sim_time_s=0.1, seq=99, steps=10**12, command=MotorCommand(q=(0.0,) * 29))
-        far_state = msgspec.structs.replace(items[0][1], sim_time_s=1e9, seq=98)  # type: ignore[arg-type]
-        far_odom = msgspec.structs.replace(items[1][1], sim_time_s=1e9, seq=98)  # type: ignore[arg-type]
+        far_state = msgspec.structs.replace(items[0][1], sim_time_s=1e9, seq=98)
+        far_odom = msgspec.structs.replace(items[1][1], sim_time_s=1e9, seq=98)
         lockstep = tmp_path / "forged-steps.mcap"
         write_recording(lockstep, "g1", items + [("state/applied", forged_command)])
         realtime = tmp_path / "forged-time.mcap"
@@ -162,7 +163,7 @@ class TestForgedRecordings:
 
     def test_damaged_files_get_notes_or_one_line_errors(self, tmp_path) -> None:
         genuine = lockstep_states()
-        short_q = msgspec.structs.replace(genuine[2][1], q=(0.1, 0.2))  # type: ignore[arg-type]
+        short_q = msgspec.structs.replace(genuine[2][1], q=(0.1, 0.2))
         damaged = tmp_path / "damaged.mcap"
         write_recording(damaged, "g1", genuine[:2] + [("cmd/joint/left_knee_joint", b"[]"), ("state/joints", short_q)]
                         + genuine[2:])

@@ -166,6 +166,7 @@ def test_secured_viz_asks_its_token_on_loopback_too(tmp_path) -> None:
         assert "the network is secured" in viz.log()
         assert request(port)[0] == 403
         assert request(port, "/ws", websocket=True, headers={"Origin": f"http://127.0.0.1:{port}"})[0] == 403
+        assert isinstance(url, re.Match), viz.log()
         assert request(port, f"/?token={url.group(1)}")[0] == 302
     finally:
         if viz is not None:

@@ -20,9 +20,10 @@ COLOURS = {"first": (0x4E, 0x9C, 0xFF), "second": (0xFF, 0x9F, 0x40), "rtf": (0x
 
 def rect(browser: Browser, element_id: str) -> tuple[int, int, int, int]:
     """(left, top, right, bottom) of an element, in screenshot pixels."""
-    return tuple(int(round(v)) for v in browser.eval(
+    left, top, right, bottom = (int(round(v)) for v in browser.eval(
         f"(() => {{ const r = document.getElementById('{element_id}').getBoundingClientRect();"
         " return [r.left, r.top, r.right, r.bottom]; })()"))
+    return left, top, right, bottom
 
 
 def colour_pixels(shot: np.ndarray, box: tuple[int, int, int, int], colour: tuple[int, int, int], tol: int = 40) -> int:

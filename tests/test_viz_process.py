@@ -143,8 +143,8 @@ class TestVizPage:
         def ghost_on_target() -> bool:
             ghost = browser.eval(f"zensim.linkPosition('ghost', '{DISTAL_LINK}')")
             robot = browser.eval(f"zensim.linkPosition('robot', '{DISTAL_LINK}')")
-            return (np.linalg.norm(np.subtract(ghost, before)) > 0.05
-                    and np.linalg.norm(np.subtract(ghost, GHOST_OFFSET_M) - robot) < 0.03)
+            return bool(np.linalg.norm(np.subtract(ghost, before)) > 0.05
+                        and np.linalg.norm(np.subtract(ghost, GHOST_OFFSET_M) - robot) < 0.03)
 
         wait_for(ghost_on_target, 20, "the ghost's hand moved to the target and the robot's hand with it",
                  interval_s=0.3)

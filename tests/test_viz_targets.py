@@ -155,9 +155,10 @@ def test_plot_targets_come_from_state_applied_by_sim_time_live_and_on_replay(sta
         page.plot(JOINT)
         driver.join(180)
         assert not driver.is_alive()
-        time.sleep(1.0)  # the last batches reach the page
-        live = page.samples()
         assert len(applied.times) >= 100
+        last = max(applied.times)
+        wait_for(lambda: any(t >= last for t, _q, _target in page.samples()), 20, "the last batches on the page")
+        live = page.samples()
         check_aligned(live, applied, "live lockstep run")
     finally:
         page.close()
@@ -173,7 +174,7 @@ def test_plot_targets_come_from_state_applied_by_sim_time_live_and_on_replay(sta
         replay_page.plot(JOINT)
         end = max(applied.times)
         replayed.wait(lambda m: m.sim_time_s >= end, timeout_s=60, what="the replay's last states")
-        time.sleep(1.0)
+        wait_for(lambda: any(t >= end for t, _q, _target in replay_page.samples()), 20, "the replay's last batches")
         check_aligned(replay_page.samples(), replay_applied, "replay")
     finally:
         replay_page.close()

@@ -51,7 +51,8 @@ def test_robots_spawn_where_the_file_says_and_stand_alone_as_a_robot_alone(tmp_p
     assert np.allclose(b.odometry(0).pos[:2], [1.0, 0.0]) and np.allclose(arm.odometry(0).pos[:2], [0.0, 3.0])
     assert b.odometry(0).quat_wxyz[3] == pytest.approx(1.0)  # facing -x
     assert (a.mode, arm.mode) == ("floating", "fixed")
-    hold(world, "a"), hold(world, "b")
+    hold(world, "a")
+    hold(world, "b")
     world.step(1000)
     for sim in (a, b):
         assert sim.odometry(0).pos[2] > 0.65 and not sim.fallen()

@@ -27,6 +27,8 @@ import os
 import sys
 from collections.abc import Sequence
 
+from zensim.schemas.keys import SERVICES
+
 COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("zensim.sim.__main__", "run the physics service"),
     "bridge": ("zensim.bridge.__main__", "run the bridge: joint targets -> motor commands"),
@@ -46,7 +48,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-LONG_RUNNING = frozenset({"sim", "bridge", "viz", "router", "unitree", "ros1", "ros2", "loco"})
+LONG_RUNNING = frozenset(SERVICES)
 
 
 def usage() -> str:

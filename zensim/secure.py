@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from zensim.common.secure import DEFAULT_HOSTS, DEFAULT_ROS_DOMAINS, SecureConfigError, init
+from zensim.common.settings import ROUTER_PORT, SECURE_LOCAL_ROUTER_ENDPOINT
 from zensim.schemas.topics import ROLE_NAMES
 
 
@@ -27,7 +28,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     make.add_argument("--host", action="append", default=[],
                       help=f"a DNS name or IP the router is reached at (repeatable; always: {', '.join(DEFAULT_HOSTS)})")
     make.add_argument("--listen", action="append", default=[],
-                      help="the router's default tls/ listen endpoint (repeatable; default tls/127.0.0.1:7447)")
+                      help=f"the router's default tls/ listen endpoint (repeatable; default {SECURE_LOCAL_ROUTER_ENDPOINT})")
     make.add_argument("--days", type=int, default=825, help="certificate lifetime in days (default 825)")
     make.add_argument("--robots", action="append", default=[], metavar="ROLE=ID[,ID...]",
                       help="the robot ids a role's credential may act on (repeatable, e.g. operator=a; "
@@ -36,7 +37,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                       help="a ROS domain whose rmw_zenoh keys `zensim ros2` and ROS 2 nodes may use (repeatable; "
                            "default 0; docs/ros.md)")
     args = parser.parse_args(list(argv) if argv is not None else None)
-    listen = tuple(args.listen) or ("tls/127.0.0.1:7447",)
+    listen = tuple(args.listen) or (SECURE_LOCAL_ROUTER_ENDPOINT,)
     bad = [e for e in listen if not e.startswith("tls/")]
     if bad:
         print(f"zensim secure: --listen takes tls/ endpoints, not {', '.join(bad)}", file=sys.stderr)
@@ -59,7 +60,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"wrote {args.dir}: router.json5, users.txt, ca.pem and one config per role ({', '.join(ROLE_NAMES)})")
     print(f"run:      zensim up --secure-dir {args.dir}")
     print(f"clients:  zenoh.Config.from_file('{args.dir}/operator.json5') + connect/endpoints "
-          "[\"tls/<router host>:7447\"]")
+          f"[\"tls/<router host>:{ROUTER_PORT}\"]")
     return 0
 
 

@@ -19,6 +19,7 @@ prefix (`ZENSIM_SIM_MODE=fixed ZENSIM_BRIDGE_RATE_HZ=500 zensim up`).
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
 import signal
@@ -26,14 +27,15 @@ import subprocess
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from typing import ClassVar
+from typing import ClassVar, Final
 
 import msgspec
 
 from zensim.common.logs import setup_logging
-from zensim.common.settings import AMBIGUOUS_LEGACY, ENV_PREFIX, describe, env_names, settings_or_exit
+from zensim.common.settings import (AMBIGUOUS_LEGACY, ENV_PREFIX, LOCAL_ROUTER_ENDPOINT, SECURE_LOCAL_ROUTER_ENDPOINT, describe,
+                                    env_names, settings_or_exit)
 from zensim.common.shutdown import stop_on_signals
-from zensim.schemas.keys import SERVICES
+from zensim.schemas.keys import OPTIONAL_SERVICES, SERVICES
 
 logger = logging.getLogger("zensim.up")
 
@@ -45,7 +47,7 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
 
     env_prefix: ClassVar[str] = "UP"
 
-    router_endpoint: str = "tcp/127.0.0.1:7447"
+    router_endpoint: str = LOCAL_ROUTER_ENDPOINT
     """Where the router listens and the other services connect."""
     viz: bool = True
     """Also run the web viewer."""
@@ -63,42 +65,25 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     """A folder made by `zensim secure init`: the router and services use TLS, passwords and roles."""
 
 
-SECURE_ENDPOINT = "tls/127.0.0.1:7447"
+SETTINGS_OF: Final[dict[str, tuple[str, str]]] = {
+    "router": ("zensim.router", "RouterSettings"),
+    "sim": ("zensim.sim.settings", "SimSettings"),
+    "bridge": ("zensim.bridge.settings", "BridgeSettings"),
+    "viz": ("zensim.viz.settings", "VizSettings"),
+    "unitree": ("zensim.unitree.settings", "UnitreeSettings"),
+    "ros1": ("zensim.ros1.settings", "Ros1Settings"),
+    "ros2": ("zensim.ros2.settings", "Ros2Settings"),
+    "loco": ("zensim.loco.settings", "LocoSettings"),
+}
+"""Each service's settings struct (module, class), imported when needed: each module is light, no mujoco.
+Keyed by keys.SERVICES (tests/test_facts.py checks that every service has one)."""
 
 
 def settings_of(name: str) -> type[msgspec.Struct]:
-    """The settings struct of a service `zensim up` runs (imported here: each is light, no mujoco)."""
-    if name == "router":
-        from zensim.router import RouterSettings
-
-        return RouterSettings
-    if name == "sim":
-        from zensim.sim.settings import SimSettings
-
-        return SimSettings
-    if name == "bridge":
-        from zensim.bridge.settings import BridgeSettings
-
-        return BridgeSettings
-    if name == "unitree":
-        from zensim.unitree.settings import UnitreeSettings
-
-        return UnitreeSettings
-    if name == "ros1":
-        from zensim.ros1.settings import Ros1Settings
-
-        return Ros1Settings
-    if name == "ros2":
-        from zensim.ros2.settings import Ros2Settings
-
-        return Ros2Settings
-    if name == "loco":
-        from zensim.loco.settings import LocoSettings
-
-        return LocoSettings
-    from zensim.viz.settings import VizSettings
-
-    return VizSettings
+    """The settings struct of a service `zensim up` runs. Raises KeyError for a name that is no service."""
+    module, cls = SETTINGS_OF[name]
+    settings: type[msgspec.Struct] = getattr(importlib.import_module(module), cls)
+    return settings
 
 
 def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir: str | None = None,
@@ -195,11 +180,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Start the children before anything opens a zenoh session (fork after zenoh.open hangs).
     endpoint = settings.router_endpoint
     if settings.secure_dir and endpoint == UpSettings().router_endpoint:
-        endpoint = SECURE_ENDPOINT
+        endpoint = SECURE_LOCAL_ROUTER_ENDPOINT
     if settings.secure_dir and not endpoint.startswith("tls/"):
         logger.error("with --secure-dir the router endpoint is tls/, not %s", endpoint)
         return 2
-    names = [name for name in SERVICES if name not in ("unitree", "ros1", "ros2", "loco") and (settings.viz or name != "viz")]
+    names = [name for name in SERVICES if name not in OPTIONAL_SERVICES and (settings.viz or name != "viz")]
     roscore = None
     if settings.ros1:
         names.append("ros1")

@@ -169,6 +169,7 @@ def decimate(source: Path, target: Path) -> tuple[int, int, float]:
     import trimesh  # noqa: PLC0415
 
     mesh = trimesh.load(source, file_type="stl")
+    assert isinstance(mesh, trimesh.Trimesh), "an STL file is one mesh, never a scene"
     samples, _ = trimesh.sample.sample_surface(mesh, SURFACE_SAMPLES, seed=0)
     best = (mesh.vertices, mesh.faces, 0.0)
     for agg in DECIMATION_AGGRESSIVENESS:
@@ -187,6 +188,15 @@ def decimate(source: Path, target: Path) -> tuple[int, int, float]:
     write_stl(target, np.asarray(vertices), np.asarray(faces),
               f"unitree_ros d6f13aa {source.name}, decimated by zensim derive.py (BSD-3-Clause, Unitree)")
     return len(mesh.faces), len(faces), deviation
+
+
+def _child_link(joint: ET.Element) -> str:
+    """The link a URDF joint moves; a joint without one is an error, not a joint to drop."""
+    child = joint.find("child")
+    link = child.get("link") if child is not None else None
+    if link is None:
+        raise ValueError(f"joint {joint.get('name')!r} names no <child link=...>")
+    return link
 
 
 def _visual_xml(filename: str, origin: np.ndarray, material: str) -> str:
@@ -259,7 +269,7 @@ def derive(official_urdf: Path, meshes_out: Path) -> str:
                 out.extend(visual_lines.get(name, []))
                 out.append(f"    <collision>{origin}<geometry>{geom}</geometry></collision>")
             out.append("  </link>")
-        elif element.tag == "joint" and element.find("child").get("link") not in DROPPED_LINKS:
+        elif element.tag == "joint" and _child_link(element) not in DROPPED_LINKS:
             out.append(_xml(element, 1))
     out.append("</robot>")
     return "\n".join(out) + "\n"

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from zensim.schemas import JointTargets, Mode, RobotInfo, short_repr
+from zensim.schemas import MODES, JointTargets, Mode, RobotInfo, short_repr
 
 MAX_TICK_S = 0.1
 """Longest tick the slew limit accounts for: after a stall the q must not jump by seconds' worth."""
@@ -104,8 +104,8 @@ class RobotModel:
         from zensim.robots.builder import build
 
         files = robot_files(robot, urdf=urdf, control=control)
-        built = {m: build(files, m) for m in ("floating", "fixed")}
-        first = built["floating"]
+        built = {m: build(files, m) for m in MODES}
+        first = built[MODES[0]]
         return cls(
             joint_names=tuple(first.joint_names),
             q_min=np.asarray(first.q_min, float),

@@ -11,8 +11,17 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from typing import Final
 
 import numpy as np
+
+GIL_SWITCH_INTERVAL_S: Final = 0.0002
+"""Longest a thread that wakes up waits for the GIL while another holds it (CPython's default: 5 ms).
+
+Zenoh callback threads take the GIL for a few microseconds per sample; under a flood they take it back
+to back, and CPython hands it to a waiting thread only after the switch interval: a loop waking every
+2 ms step (the sim's physics, the Unitree adapter's DDS thread) would then wait up to 5 ms each time.
+Each such service calls `sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)` at start."""
 
 
 class Pacer:

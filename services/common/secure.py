@@ -28,6 +28,7 @@ from typing import Final
 
 import zenoh
 
+from zensim.common.settings import ROUTER_PORT, SECURE_LOCAL_ROUTER_ENDPOINT
 from zensim.schemas.keys import ROOT, check_robot_id
 from zensim.schemas.topics import EVERY_ROLE_WATCHES, ROLE_NAMES, ROLES, ROUTER_ALIVE, Role
 
@@ -199,7 +200,7 @@ def _json5(header: str, config: dict) -> str:
     return "// " + "\n// ".join(header.splitlines()) + "\n" + json.dumps(config, indent=2) + "\n"
 
 
-def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("tls/127.0.0.1:7447",),
+def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = (SECURE_LOCAL_ROUTER_ENDPOINT,),
          days: int = CERT_DAYS, robots: Mapping[str, Sequence[str]] | None = None,
          ros_domains: Sequence[int] = DEFAULT_ROS_DOMAINS) -> list[Path]:
     """Make a CA, the router's certificate, one certificate and password per role, and the configs.
@@ -275,7 +276,7 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("
         }
         put(f"{role}.json5", _json5(
             f"zensim {role} credentials: a Zenoh client config; add connect/endpoints, e.g.\n"
-            f'  "connect": {{"endpoints": ["tls/<router host>:7447"]}}\nKeep private.', client))
+            f'  "connect": {{"endpoints": ["tls/<router host>:{ROUTER_PORT}"]}}\nKeep private.', client))
     return written
 
 

@@ -27,7 +27,7 @@ from collections.abc import Mapping
 import zenoh
 
 from .secure import SecureConfigError, role_config
-from .settings import ZenohSettings
+from .settings import LOCAL_ROUTER_ENDPOINT, ZenohSettings
 from .shutdown import connecting
 
 logger = logging.getLogger(__name__)
@@ -37,7 +37,7 @@ class StartupError(RuntimeError):
     """A failure at start that the user can fix; its text names the setting and the cause."""
 
 
-LOCAL_MEETING_ENDPOINT = "tcp/127.0.0.1:7447"
+LOCAL_MEETING_ENDPOINT = LOCAL_ROUTER_ENDPOINT
 """Where peers with no endpoints meet on one machine (the default `zensim router` endpoint)."""
 LOOPBACK_ANY_PORT = "tcp/127.0.0.1:0"
 WAITING_LOG_PERIOD_S = 5.0

@@ -27,7 +27,7 @@ import os
 import re
 import sys
 from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar, Literal, TypeVar
+from typing import Any, ClassVar, Final, Literal, TypeVar
 
 import msgspec
 
@@ -46,6 +46,13 @@ class SettingsError(ValueError):
     """A setting that cannot be parsed or is out of range; names the field."""
 
 
+ROUTER_PORT: Final = 7447
+"""Zenoh's customary router port: where `zensim router` (and `zensim up`'s router) listen unless told."""
+LOCAL_ROUTER_ENDPOINT: Final = f"tcp/127.0.0.1:{ROUTER_PORT}"
+"""The router's default endpoint, and where peers with no endpoints meet on one machine."""
+SECURE_LOCAL_ROUTER_ENDPOINT: Final = f"tls/127.0.0.1:{ROUTER_PORT}"
+"""The router's default endpoint on a secured network (`zensim secure init`, `--secure-dir`)."""
+
 ENDPOINT_PATTERN = re.compile(r"(?P<proto>[a-z0-9-]+)/(?P<address>[^#?]+)(?P<rest>[#?].*)?")
 """`proto/address[?metadata][#config]`, the shape of a zenoh locator."""
 PORTED_PROTOCOLS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
@@ -61,7 +68,7 @@ def check_endpoint(endpoint: str) -> str:
     """
     match = ENDPOINT_PATTERN.fullmatch(endpoint)
     if not match:
-        raise ValueError(f"endpoint {endpoint!r} is not of the form proto/address (e.g. tcp/127.0.0.1:7447)")
+        raise ValueError(f"endpoint {endpoint!r} is not of the form proto/address (e.g. {LOCAL_ROUTER_ENDPOINT})")
     proto, address = match["proto"], match["address"]
     if proto not in KNOWN_PROTOCOLS:
         raise ValueError(f"endpoint {endpoint!r}: unknown protocol {proto!r} (known: {', '.join(sorted(KNOWN_PROTOCOLS))})")
@@ -116,9 +123,6 @@ class CommonSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
 
     env_prefix: ClassVar[str] = ""
     """The service's prefix for its own fields' variables (`SIM` -> `ZENSIM_SIM_*`)."""
-    first_release_names: ClassVar[bool] = True
-    """Whether the service existed in the first release, whose unprefixed names (`ZENSIM_RTF`) it then
-    still reads for one release; a newer service has only its prefixed names."""
 
     robot_id: str = "g1"
     """Robot id: the `{robot}` chunk of every key (zensim/{robot}/...)."""
@@ -134,12 +138,26 @@ SHARED_FIELDS = frozenset(field.name for field in msgspec.structs.fields(CommonS
 SHARED_NAMES = frozenset({"secure_dir"})
 """Settings that keep one unprefixed variable wherever they appear (`ZENSIM_SECURE_DIR` for every service and up)."""
 
+FIRST_RELEASE_FIELDS: Final[dict[str, frozenset[str]]] = {
+    "SIM": frozenset({"robot", "urdf", "control", "mode", "timestep_s", "rtf", "state_rate_hz", "state_clock",
+                      "status_rate_hz", "watchdog_timeout_s", "auto_reset_on_fall", "fall_reset_delay_s", "max_kp",
+                      "max_kd", "paused"}),
+    "BRIDGE": frozenset({"rate_hz", "targets_rate_hz", "slew_rad_s", "info_timeout_s", "robot", "urdf", "control"}),
+    "VIZ": frozenset({"host", "port", "urdf", "rate_hz", "ghost", "ghost_offset_m", "query_timeout_s"}),
+    "ROUTER": frozenset({"cmd_rate_limit_hz", "input_size_limit_bytes"}),
+    "UP": frozenset({"router_endpoint", "viz"}),
+}
+"""By service prefix, the fields the first release read under unprefixed names (`ZENSIM_RTF`): the
+settings as they were before names carried a service's prefix (git af9d6c4^; the project has no tags).
+Only these keep their old name for this release, with a warning. Fields added since (the sim's clock
+and world, the viz's token, `zensim up --unitree`, ...) and newer services never had an unprefixed
+name: inventing one made `ZENSIM_UNITREE=1`, compose's build switch, also turn on `zensim up --unitree`."""
+
 AMBIGUOUS_LEGACY: dict[str, tuple[str, ...]] = {
     "ZENSIM_RATE_HZ": ("ZENSIM_BRIDGE_RATE_HZ", "ZENSIM_VIZ_RATE_HZ"),
     "ZENSIM_URDF": ("ZENSIM_SIM_URDF", "ZENSIM_BRIDGE_URDF", "ZENSIM_VIZ_URDF"),
     "ZENSIM_ROBOT": ("ZENSIM_SIM_ROBOT", "ZENSIM_BRIDGE_ROBOT"),
     "ZENSIM_CONTROL": ("ZENSIM_SIM_CONTROL", "ZENSIM_BRIDGE_CONTROL"),
-    "ZENSIM_WORLD": ("ZENSIM_SIM_WORLD", "ZENSIM_VIZ_WORLD"),  # a world file for the sim, a world id for the viz
 }
 """First-release names that several services read with different meanings: refused, naming the new ones
 (`ZENSIM_RATE_HZ=500 zensim up` meant the bridge's rate and stopped the viz, whose limit is 240)."""
@@ -153,14 +171,14 @@ def env_names(cls: type[msgspec.Struct]) -> dict[str, str | None]:
 def _fields_with_env(cls: type[msgspec.Struct]) -> list[tuple[str, tuple[str, ...], Any, str, str, str | None]]:
     """(flat name, path, type, help, variable, first-release variable or None) for every leaf field."""
     prefix = getattr(cls, "env_prefix", "")
-    had_first_release = getattr(cls, "first_release_names", True)
+    released = FIRST_RELEASE_FIELDS.get(prefix, frozenset())
     out: list[tuple[str, tuple[str, ...], Any, str, str, str | None]] = []
     for name, path, typ, doc in _flat_fields(cls):
         plain = ENV_PREFIX + name.upper()
         if path[0] in SHARED_FIELDS or name in SHARED_NAMES or not prefix:
             out.append((name, path, typ, doc, plain, None))
         else:
-            out.append((name, path, typ, doc, f"{ENV_PREFIX}{prefix}_{name.upper()}", plain if had_first_release else None))
+            out.append((name, path, typ, doc, f"{ENV_PREFIX}{prefix}_{name.upper()}", plain if name in released else None))
     return out
 
 

@@ -20,7 +20,6 @@ class Ros1Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     """
 
     env_prefix: ClassVar[str] = "ROS1"
-    first_release_names: ClassVar[bool] = False
     namespace: str = ""
     """ROS namespace of the robot's topics; empty: `/{robot_id}_description` (`/g1_description`)."""
     joint_states_topic: str = "joint_states"

@@ -41,7 +41,7 @@ import msgspec
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
-from zensim.common.pacing import Pacer
+from zensim.common.pacing import GIL_SWITCH_INTERVAL_S, Pacer
 from zensim.common.claim import current_owner, taken_message
 from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, is_wildcard, payload_of, reply
@@ -57,6 +57,7 @@ from zensim.schemas import (
     JointState,
     Odometry,
     Keys,
+    MODES,
     Mode,
     ModeRequest,
     PauseRequest,
@@ -93,8 +94,6 @@ takes cost the command thread ~13 % of a core under a 10 kHz flood, 2 ms ~8 %, m
 COMMAND_POLL_S = 0.0005
 """How often the command thread empties zenoh's ring while it waits for the next take (5 samples of a
 10 kHz flood: few enough that the ring holds on to no receive buffers)."""
-GIL_SWITCH_INTERVAL_S = 0.0002
-"""Longest the physics thread waits for the GIL while callback threads hold it (CPython default: 5 ms)."""
 FAST_BATCH_STEPS = 10
 """Steps run back to back at rtf 0 with wall-clock states (0.2-0.4 ms of wall time)."""
 
@@ -255,8 +254,7 @@ class SimService:
         """Re-render info/robot (after a mode switch); figures of the other mode come from a cached build."""
         sim = self.sim
         self._robots_by_mode[sim.mode] = sim.robot
-        modes: tuple[Mode, ...] = ("floating", "fixed")
-        for mode in modes:
+        for mode in MODES:
             if mode not in self._robots_by_mode:
                 self._robots_by_mode[mode] = build(sim.files, mode, sim.terrain)
         info = sim.robot_info(self.keys, self.settings.state_rate_hz, self.settings.status_rate_hz, self._robots_by_mode)

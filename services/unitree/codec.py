@@ -24,6 +24,7 @@ import numpy as np
 from .crc import unitree_crc
 
 NUM_MOTORS: Final = 35
+"""Motor slots in LowCmd_/LowState_ (the G1 29-DoF uses 0..28); idl.py's DDS types read it too."""
 
 CDR_LE: Final = b"\x00\x01"
 """Encapsulation id of XCDR1 little-endian (what Cyclone DDS 0.10 writes for these types)."""

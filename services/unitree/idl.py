@@ -15,8 +15,7 @@ from dataclasses import dataclass, field
 
 from cyclonedds.idl import IdlStruct, annotations as annotate, types
 
-NUM_MOTORS = 35
-"""Motor slots in LowCmd_/LowState_; the G1 29-DoF uses 0..28."""
+from .codec import NUM_MOTORS  # the motor slots of LowCmd_/LowState_, one home for both wire forms
 
 
 def _zeros(n: int):  # noqa: ANN202 (a dataclass field)

@@ -54,6 +54,7 @@ from dataclasses import dataclass
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
+from zensim.common.pacing import GIL_SWITCH_INTERVAL_S
 from zensim.common.robot_info import fetch_robot
 from zensim.common.wire import TypedPublisher, decode_input
 from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, RemoteState, RobotInfo, SimStatus, UnitreeStatus, bounded,
@@ -79,8 +80,6 @@ LOWCMD_TAKE_PERIOD_S = 0.001
 examples) sends slower than this and never waits; a faster one has its older samples shed."""
 LOWSTATE_LF_PERIOD_S = 0.02
 """rt/lf/lowstate, the low-frequency copy of LowState_: one per 20 ms of sim time (50 Hz)."""
-GIL_SWITCH_INTERVAL_S = 0.0002
-"""Longest a thread that wakes up waits for the GIL while another holds it (CPython default: 5 ms)."""
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,6 @@ class UnitreeSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_
     """Settings of `zensim unitree`: Unitree's DDS LowCmd/LowState on one side, zensim's keys on the other."""
 
     env_prefix: ClassVar[str] = "UNITREE"
-    first_release_names: ClassVar[bool] = False
     domain_id: Annotated[int, msgspec.Meta(ge=0, le=232)] = 1
     """DDS domain id, as the SDK's ChannelFactoryInitialize(domain, ...): the robot uses 0, unitree_mujoco 1."""
     interface: str = "lo"

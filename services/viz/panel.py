@@ -15,9 +15,8 @@ from typing import Any, Final, Literal
 
 import msgspec
 
-from zensim.schemas import JointTargets, bounded, short_repr
+from zensim.schemas import JointTargets, Mode, bounded, short_repr
 
-MODES: Final = ("floating", "fixed")
 MAX_PLOT_JOINTS: Final = 6
 
 
@@ -41,7 +40,7 @@ class PageCtl(msgspec.Struct, tag="ctl", forbid_unknown_fields=True):
 class PageMode(msgspec.Struct, tag="mode", forbid_unknown_fields=True):
     """The mode selector: `{"type": "mode", "mode": "fixed"}`."""
 
-    mode: Literal["floating", "fixed"]
+    mode: Mode
 
 
 class PagePlot(msgspec.Struct, tag="plot", forbid_unknown_fields=True):

@@ -64,7 +64,9 @@ MAX_OVER_RATE = 2000
 """Messages past the rate a page may send before it is dropped as hostile (ten seconds' worth)."""
 DROPPED_CLOSE_CODE = 1008
 """Websocket close code "policy violation": the page did not read what it was sent."""
-STATIC_DIR = Path(str(resources.files("zensim.viz") / "static"))
+STATIC_DIR = Path(str(resources.files("zensim.viz") / "static" / "index.html")).resolve().parent
+"""The page's folder itself: an editable install's tree links each file (to the checkout), and tornado
+serves a link only when its real path is inside the folder it serves."""
 MESHCAT_JS = Path(meshcat.__file__).parent / "viewer" / "dist" / "main.min.js"
 # Located without importing plotly (its Python side is not needed, only the bundled JS).
 PLOTLY_JS = Path(importlib.util.find_spec("plotly").origin).parent / "package_data" / "plotly.min.js"  # type: ignore[union-attr,arg-type]

@@ -55,7 +55,7 @@ if _DIR:
                  "declare_subscriber": "subscriber", "declare_queryable": "queryable",
                  "declare_querier": "querier", "get": "querier"}
 
-        def __init__(self, session: object) -> None:
+        def __init__(self, session: zenoh.Session) -> None:
             self._s = session
 
         def __getattr__(self, name: str) -> object:

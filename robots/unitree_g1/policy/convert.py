@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out_npz", type=Path)
     args = parser.parse_args(argv)
     arrays = extract(load_torchscript(args.motion_pt))
-    np.savez(args.out_npz, **arrays)
+    np.savez(args.out_npz, allow_pickle=False, **arrays)
     digest = hashlib.sha256(args.motion_pt.read_bytes()).hexdigest()
     print(f"{args.motion_pt} (sha256 {digest}) -> {args.out_npz}")
     for key, value in arrays.items():

@@ -1,0 +1,1 @@
+/work/main/services/bridge/__init__.py

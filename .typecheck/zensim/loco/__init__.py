@@ -1,0 +1,1 @@
+/work/main/services/loco/__init__.py

@@ -1,0 +1,1 @@
+/work/main/services/loco/walk_policy.py

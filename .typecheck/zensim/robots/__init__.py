@@ -1,0 +1,1 @@
+/work/main/robots/__init__.py

@@ -1,0 +1,1 @@
+/work/main/robots/walking.py

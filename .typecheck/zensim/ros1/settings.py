@@ -1,0 +1,1 @@
+/work/main/services/ros1/settings.py

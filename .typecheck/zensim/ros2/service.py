@@ -1,0 +1,1 @@
+/work/main/services/ros2/service.py

@@ -1,0 +1,1 @@
+/work/main/zensim/secure.py

@@ -1,0 +1,1 @@
+/work/main/services/sim/settings.py

@@ -1,0 +1,1 @@
+/work/main/services/unitree/crc.py

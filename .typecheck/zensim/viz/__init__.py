@@ -1,0 +1,1 @@
+/work/main/services/viz/__init__.py

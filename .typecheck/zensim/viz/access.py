@@ -1,0 +1,1 @@
+/work/main/services/viz/access.py
