@@ -4,6 +4,8 @@ the GUI's moved sliders, the odometry's frames, mesh URLs."""
 from __future__ import annotations
 
 import math
+import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -17,6 +19,7 @@ from zensim.ros1.mapping import (
     mesh_references,
     with_mesh_urls,
 )
+from support import REPO
 from zensim.schemas import JointTargets, Odometry
 
 ARM = RobotJoints(names=("shoulder", "elbow"), q_min=(-2.0, 0.0), q_max=(2.0, 2.5), run_id="r1", mesh_paths=())
@@ -115,3 +118,21 @@ def test_without_rospy_the_gateway_says_so_in_one_line() -> None:
     lines = [line for line in result.stderr.splitlines() if line.startswith("zensim ros1:")]
     assert len(lines) == 1 and "cannot import rospy" in lines[0] and "docs/ros.md" in lines[0], result.stderr
     assert "Traceback" not in result.stderr
+
+
+LAUNCH_FILES = sorted((REPO / "deploy").rglob("*.launch"))
+
+
+@pytest.mark.skipif(not Path("/usr/bin/roslaunch").exists(), reason="needs Debian's ROS 1 (roslaunch)")
+@pytest.mark.parametrize("launch", LAUNCH_FILES, ids=lambda p: str(p.relative_to(REPO)))
+def test_every_launch_file_passes_roslaunch_s_own_check(launch: Path) -> None:
+    """roslaunch's own check (rlutil.check_roslaunch, what `roslaunch-check` runs): the XML parses, every
+    node's package and program exist. A comment with two dashes in a row once made display.launch unreadable."""
+    check = "import sys, roslaunch.rlutil; print(roslaunch.rlutil.check_roslaunch(sys.argv[1]) or 'ok')"
+    result = subprocess.run(["/usr/bin/python3", "-c", check, str(launch)], capture_output=True, text=True,
+                            timeout=60, cwd=launch.parent)
+    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stdout + result.stderr
+
+
+def test_there_is_a_launch_file_to_check() -> None:
+    assert REPO / "deploy" / "ros1" / "display.launch" in LAUNCH_FILES
