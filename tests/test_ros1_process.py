@@ -360,7 +360,7 @@ def test_up_ros1_starts_roscore_and_the_gateway_and_ctrl_c_stops_them(tmp_path, 
         up.send_signal(signal.SIGINT)
         assert up.wait(20) == 0, (tmp_path / "up.log").read_text()
         text = (tmp_path / "up.log").read_text()
-        assert "ros1 exited with 0" in text and "roscore exited with 0" in text, text
+        assert "ros1 exited with 0" in text and "the ROS master exited with 0" in text, text
         with pytest.raises(OSError):
             with xmlrpc.client.ServerProxy(ros["ROS_MASTER_URI"]) as master:
                 master.getPid("/test")

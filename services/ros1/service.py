@@ -22,6 +22,7 @@ The rules (names, checks, the odometry's frames, mesh URLs) live in mapping.py.
 from __future__ import annotations
 
 import logging
+import os
 import socket
 import threading
 import time
@@ -40,11 +41,13 @@ from sensor_msgs.msg import JointState as RosJointState
 from std_msgs.msg import Float64
 from tf2_msgs.msg import TFMessage
 
+from zensim.common.edges import check_edge, is_loopback
 from zensim.common.logs import FORMAT, RateLimitedLog
 from zensim.common.robot_info import fetch_robot
 from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
-from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros1Status, SimStatus, encoding_of, topics
+from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros1Status, SimStatus, bounded,
+                            encoding_of, topics)
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
 
 from .mapping import GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, with_mesh_urls, xyzw
@@ -59,6 +62,12 @@ MASTER_CHECK_S = 1.0
 """How often the gateway asks the master whether it is still the same one."""
 MASTER_TIMEOUT_S = 2.0
 """Longest one question to the master may take."""
+ROS_SHUTDOWN_S = 1.0
+"""Longest rospy's own shutdown (it unregisters every topic from the master, with no timeout) may take:
+a frozen master never answers, and SIGTERM must still end the process."""
+STUCK_EXIT_S = 4.0
+"""After SIGTERM, how long the gateway may stay inside a call to a master that does not answer (rospy's
+init_node, set_param) before it leaves without finishing it."""
 
 
 def names_of(settings: Ros1Settings) -> RosNames:
@@ -371,6 +380,31 @@ class _TimeoutTransport(xmlrpc.client.Transport):
         return connection
 
 
+def ros_bind_address() -> str:
+    """The address rospy binds the node's XML-RPC and TCPROS servers to: loopback unless ROS_IP or
+    ROS_HOSTNAME says otherwise (rospy alone would bind every interface when neither is set)."""
+    import rosgraph.network
+
+    if rosgraph.network.get_address_override() is None:
+        os.environ["ROS_IP"] = "127.0.0.1"  # read by rospy's init_node: how a ROS node is told where to listen
+    return rosgraph.network.get_bind_address()
+
+
+def check_ros_edge(settings: Ros1Settings) -> None:
+    """Loopback unless ROS_IP / ROS_HOSTNAME ask otherwise; beyond it, warn, or refuse under --secure-dir
+    without --open-edge (services/common/edges.py).
+
+    Raises:
+        StartupError: beyond loopback under --secure-dir without --open-edge.
+    """
+    import rosgraph.network
+
+    bind = ros_bind_address()
+    where = f"{bind} (ROS_IP / ROS_HOSTNAME {rosgraph.network.get_address_override()})"
+    check_edge("the ROS 1 gateway (its XML-RPC and TCPROS servers)", where, is_loopback(bind),
+               settings.zenoh.secure_dir, settings.open_edge, logger)
+
+
 def rosmaster_uri() -> str:
     import rosgraph
 
@@ -393,12 +427,48 @@ def description_bytes(session: zenoh.Session, key: str, timeout_s: float) -> byt
     raise LookupError(f"no reply on {key} within {timeout_s} s")
 
 
+class RosShutdown:
+    """Why rospy shut this node down, when something other than us did: `rosnode kill`, an XML-RPC
+    `shutdown` call to the node (anyone who reaches its port may send one), or the master when another
+    node registered the same name. rospy's side then stops for good while the process would run on."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None
+        self.ours = False
+
+    def note(self, reason: str) -> None:
+        """rospy's pre-shutdown hook: called once, with rospy's reason, on the thread that shut it down."""
+        if not self.ours:
+            self.reason = bounded(str(reason), 300)
+
+    def shut_down(self, why: str) -> None:
+        """Shut rospy down ourselves, waiting at most ROS_SHUTDOWN_S for it to unregister from the master."""
+        self.ours = True
+        closer = threading.Thread(target=rospy.signal_shutdown, args=(why,), name="ros-shutdown", daemon=True)
+        closer.start()
+        closer.join(ROS_SHUTDOWN_S)
+        if closer.is_alive():
+            logger.warning("the ROS master did not answer within %.1f s: leaving without unregistering",
+                           ROS_SHUTDOWN_S)
+
+
+def _leave_if_stuck(stop: threading.Event) -> None:
+    """Once `stop` is set, give the gateway STUCK_EXIT_S to return, then leave: a call to a frozen master
+    (rospy's init_node, set_param) has no timeout and would hold SIGTERM off until a SIGKILL."""
+    stop.wait()
+    time.sleep(STUCK_EXIT_S)
+    logger.warning("still inside a call to the ROS master %.0f s after the stop signal: leaving now", STUCK_EXIT_S)
+    logging.shutdown()
+    os._exit(0)
+
+
 def run(session: zenoh.Session, settings: Ros1Settings, stop: threading.Event) -> int:
-    """Learn the robot, join the ROS graph, map until `stop` is set.
+    """Learn the robot, join the ROS graph, map until `stop` is set or the ROS side is shut down.
 
     Returns:
-        The process exit code.
+        The process exit code: 1 when something on the ROS side shut the gateway's node down.
     """
+    threading.Thread(target=_leave_if_stuck, args=(stop,), name="stuck-exit", daemon=True).start()
     keys = Keys(settings.robot_id)
     try:
         names = names_of(settings)
@@ -431,6 +501,8 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
         return 0
     node = settings.node_name or f"zensim_ros1_{settings.robot_id.replace('-', '_')}"
     logger.info("joining the ROS graph as /%s, master %s", node, rosmaster_uri())
+    ros_shutdown = RosShutdown()
+    rospy.core.add_preshutdown_hook(ros_shutdown.note)
     rospy.init_node(node, disable_signals=True)
     # init_node points the root logger at a file in ROS_HOME/log: ours go to stderr like every service's.
     logging.basicConfig(level=settings.log_level.upper(), format=FORMAT, force=True)
@@ -443,7 +515,7 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
         gateway.start(robot)
     except LookupError as exc:
         gateway.close()
-        rospy.signal_shutdown("no robot description")
+        ros_shutdown.shut_down("no robot description")
         raise StartupError(f"cannot read the robot's URDF: {exc}") from None
     watcher = threading.Thread(target=gateway.watch_master, args=(stop,), name="ros-master", daemon=True)
     watcher.start()
@@ -453,8 +525,15 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
     period_s = 1.0 / settings.status_rate_hz
     seq = 0
     last_count, last_time = 0, time.monotonic()
+    exit_code = 0
     try:
         while not stop.wait(period_s):
+            if ros_shutdown.reason is not None:
+                # Serving on would be a lie: no ROS output, commands ignored, and a live alive/ros1 token.
+                logger.error("the gateway's ROS node was shut down from outside (%s): exiting (restart it; "
+                             "`zensim up` stops with it)", ros_shutdown.reason)
+                exit_code = 1
+                break
             if gateway.sim_restarted.is_set():
                 robot = _learn_robot(session, keys, settings, stop)
                 if robot is None:
@@ -473,8 +552,8 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
     finally:
         token.undeclare()
         gateway.close()
-        rospy.signal_shutdown("zensim ros1 stopping")
+        ros_shutdown.shut_down("zensim ros1 stopping")
     c = gateway.counters
     logger.info("%d ROS commands read, %d forwarded, %d rejected; %d joint states published",
                 c.commands_received, c.commands_forwarded, gateway.refusals.count, c.joint_states_published)
-    return 0
+    return exit_code

@@ -1,7 +1,8 @@
 """Settings of `zensim ros1` (defaults < `ZENSIM_*` environment < `--flags`).
 
 The ROS master itself is ROS's own business: rospy reads `ROS_MASTER_URI`, `ROS_IP` /
-`ROS_HOSTNAME` and `ROS_HOME` from the environment, as every ROS node does.
+`ROS_HOSTNAME` and `ROS_HOME` from the environment, as every ROS node does. With neither `ROS_IP`
+nor `ROS_HOSTNAME` set the gateway binds loopback (ROS's own default would be every interface).
 """
 
 from __future__ import annotations
@@ -66,6 +67,9 @@ class Ros1Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     """ROS node name; empty: `zensim_ros1_{robot_id}`."""
     info_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
     """How long each query of the sim's info/robot, info/urdf and info/mesh waits, s."""
+    open_edge: bool = False
+    """With --secure-dir, let the gateway's ROS side listen beyond loopback anyway (ROS_IP / ROS_HOSTNAME
+    another address): ROS 1 has no authentication, so anyone who reaches it drives the robot."""
     ros_python_path: str = "/usr/lib/python3/dist-packages"
     """Where rospy is found when the Python running zensim cannot import it (Debian's ROS packages
     install there); searched after everything else, so the project's own packages win."""

@@ -5,7 +5,10 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from zensim.common.entry import fail, serve
+import logging
+
+from zensim.common.edges import check_edge
+from zensim.common.entry import StartupError, fail, serve
 from zensim.common.logs import setup_logging
 from zensim.common.settings import settings_or_exit
 
@@ -17,6 +20,12 @@ PROG = "zensim unitree"
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(UnitreeSettings, argv, PROG)
     setup_logging(settings.log_level)
+    try:  # DDS has no authentication: loopback unless asked (docs/security.md)
+        check_edge("the Unitree DDS adapter", f"interface {settings.interface or '(any: Cyclone DDS chooses)'}",
+                   settings.interface == "lo", settings.zenoh.secure_dir, settings.open_edge,
+                   logging.getLogger("zensim.unitree"))
+    except StartupError as exc:
+        return fail(PROG, str(exc))
     try:
         from .service import run  # imports cyclonedds: say how to get it when it is missing
     except ImportError as exc:
