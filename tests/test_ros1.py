@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from zensim.ros1.mapping import (
+    CommandGate,
     GuiChanges,
     InputError,
     P3dOdometry,
@@ -84,6 +85,21 @@ def test_the_rate_gate_thins_a_faster_sim_and_starts_over_after_a_reset() -> Non
     gate = RateGate(100.0)
     assert all(gate.due(i * 0.01) for i in range(100))  # a 100 Hz sim: every state
     assert gate.due(0.0)  # time went back (a reset): publish at once
+
+
+def test_the_command_gate_forwards_one_per_period_per_key_and_the_newest_of_a_burst_later() -> None:
+    gate: CommandGate[str, float] = CommandGate(100.0)
+    assert gate.offer("elbow", 0.1, 0.0) == (True, False)
+    assert gate.offer("knee", 0.2, 0.001) == (True, False), "another topic has its own budget"
+    assert gate.offer("elbow", 0.3, 0.002) == (False, False)
+    assert gate.offer("elbow", 0.4, 0.003) == (False, True), "a held one replaced is shed"
+    assert gate.due(0.005) == []
+    assert gate.due(0.0101) == [("elbow", 0.4)], "the newest of the burst goes in its turn"
+    assert gate.due(0.03) == []
+    assert gate.offer("elbow", 0.5, 0.015) == (False, False)
+    assert gate.offer("elbow", 0.6, 0.0202) == (True, True), "due and newer: sent at once, the held one shed"
+    unlimited: CommandGate[str, float] = CommandGate(0)
+    assert all(unlimited.offer("elbow", 0.1, 0.0) == (True, False) for _ in range(5))
 
 
 def test_odometry_is_p3d_s_pose_and_world_frame_twist() -> None:

@@ -46,16 +46,19 @@ from zensim.common.logs import FORMAT, RateLimitedLog
 from zensim.common.robot_info import fetch_robot
 from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
-from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros1Status, SimStatus, bounded,
-                            encoding_of, topics)
+from zensim.schemas import (Codec, DecodeError, Imu, JointState, JointTargets, Keys, Odometry, Ros1Status, SimStatus,
+                            bounded, encoding_of, topics)
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
 
-from .mapping import GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, with_mesh_urls, xyzw
+from .mapping import (CommandGate, GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, with_mesh_urls,
+                      xyzw)
 from .meshserver import MeshServer
 from .settings import Ros1Settings
 
 logger = logging.getLogger("zensim.ros1")
 
+GUI_KEY = "/gui"
+"""The command gate's key for the GUI's topic (joint names never start with `/`)."""
 ROS_QUEUE = 10
 """Depth of each rospy publisher's and subscriber's queue: the oldest message is dropped beyond it."""
 MASTER_CHECK_S = 1.0
@@ -84,6 +87,7 @@ class Counters:
         self.sim_time_s = 0.0
         self.commands_received = 0
         self.commands_forwarded = 0
+        self.commands_shed = 0
         self.last_command: float | None = None
         self.description_updates = 0
         self.master_restarts = 0
@@ -110,6 +114,8 @@ class Gateway:
         self._episode = ""
         self._cap_bytes = 0
         self._gui_changes = GuiChanges()
+        self._command_gate: CommandGate[str, float | JointTargets] = CommandGate(settings.command_rate_hz)
+        """Per topic (a joint's name, or GUI_KEY): at most command_rate_hz forwards a second; guarded by _lock."""
         self._command_subscribers: list[rospy.Subscriber] = []
         self._codecs: dict[type, Codec[Any]] = {JointState: Codec(JointState), Odometry: Codec(Odometry),
                                                 Imu: Codec(Imu), SimStatus: Codec(SimStatus)}
@@ -158,6 +164,7 @@ class Gateway:
             ]
             with self._lock:
                 self._gui_changes.forget()
+                self._command_gate.forget()
         if self._mesh_server is not None:
             self._mesh_server.serve_robot(robot.mesh_paths)
         self.set_params()
@@ -177,9 +184,7 @@ class Gateway:
     def mesh_url(self) -> str:
         if self._mesh_server is None:
             return ""
-        host = self._settings.mesh_http_host or self._settings.mesh_http_bind
-        if host in ("0.0.0.0", "::", ""):
-            host = socket.gethostname()
+        host = mesh_host(self._settings)
         if ":" in host:
             host = f"[{host}]"
         return f"http://{host}:{self._mesh_server.port}"
@@ -270,11 +275,6 @@ class Gateway:
             self.counters.commands_received += 1
             return self._robot
 
-    def _forwarded(self) -> None:
-        with self._lock:
-            self.counters.commands_forwarded += 1
-            self.counters.last_command = time.monotonic()
-
     def _on_command(self, message: Float64, joint: str) -> None:
         robot = self._received()
         topic = self.names.command(joint)
@@ -285,9 +285,7 @@ class Gateway:
         except (InputError, TypeError) as exc:
             self.refusals.refuse(topic, str(exc))
             return
-        self._session.put(self._keys.joint_target(joint), msgspec.msgpack.encode(value),
-                          encoding=self._scalar_encoding)
-        self._forwarded()
+        self._offer(joint, value)
 
     def _on_gui(self, message: RosJointState) -> None:
         robot = self._received()
@@ -298,11 +296,42 @@ class Gateway:
         except (InputError, TypeError) as exc:
             self.refusals.refuse(self.names.gui, str(exc))
             return
+        self._offer(GUI_KEY, targets)
+
+    def _offer(self, key: str, value: float | JointTargets) -> None:
+        """A valid command through the gate: forwarded now, or held for its turn (a held one is shed)."""
         with self._lock:  # rospy calls back on one thread per publisher: two GUIs, two threads
-            changed = self._gui_changes.changed(targets)
-        if changed is not None:
+            forward_now, shed = self._command_gate.offer(key, value, time.monotonic())
+            self.counters.commands_shed += shed
+        if forward_now:
+            self._forward(key, value)
+
+    def forward_held(self, stop: threading.Event) -> None:
+        """Forward each held command when its turn comes (the newest of a burst always arrives)."""
+        period_s = self._command_gate.period_s
+        if period_s <= 0:
+            return
+        while not stop.wait(period_s / 2):
+            with self._lock:
+                ready = self._command_gate.due(time.monotonic())
+            for key, value in ready:
+                self._forward(key, value)
+
+    def _forward(self, key: str, value: float | JointTargets) -> None:
+        if isinstance(value, JointTargets):
+            # The sliders that moved since the last forward: computed at forward time, so a GUI message
+            # shed while held loses no slider that the newer one still holds.
+            with self._lock:
+                changed = self._gui_changes.changed(value)
+            if changed is None:
+                return
             self._targets.put(changed)
-            self._forwarded()
+        else:
+            self._session.put(self._keys.joint_target(key), msgspec.msgpack.encode(value),
+                              encoding=self._scalar_encoding)
+        with self._lock:
+            self.counters.commands_forwarded += 1
+            self.counters.last_command = time.monotonic()
 
     # --- the master ------------------------------------------------------------------------------
 
@@ -361,6 +390,7 @@ class Gateway:
                 last_error=self.refusals.last_error,
                 command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
                 description_updates=c.description_updates, mesh_url=self.mesh_url(),
+                commands_shed=c.commands_shed,
             )
         self._status.put(status)
 
@@ -378,6 +408,12 @@ class _TimeoutTransport(xmlrpc.client.Transport):
         connection = super().make_connection(host)
         connection.timeout = MASTER_TIMEOUT_S
         return connection
+
+
+def mesh_host(settings: Ros1Settings) -> str:
+    """The host name robot_description's mesh URLs name (and so the Host header RViz sends)."""
+    host = settings.mesh_http_host or settings.mesh_http_bind
+    return socket.gethostname() if host in ("0.0.0.0", "::", "") else host
 
 
 def ros_bind_address() -> str:
@@ -478,7 +514,8 @@ def run(session: zenoh.Session, settings: Ros1Settings, stop: threading.Event) -
     if settings.mesh_urls == "http":
         try:
             mesh_server = MeshServer(settings.mesh_http_bind, settings.mesh_http_port,
-                                     lambda path: description_bytes(session, keys.mesh(path), settings.info_timeout_s))
+                                     lambda path: description_bytes(session, keys.mesh(path), settings.info_timeout_s),
+                                     hosts=(mesh_host(settings),))
         except OSError as exc:
             raise StartupError(f"cannot serve meshes on {settings.mesh_http_bind}:{settings.mesh_http_port}: "
                                f"{exc.strerror or exc}") from None
@@ -519,6 +556,7 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
         raise StartupError(f"cannot read the robot's URDF: {exc}") from None
     watcher = threading.Thread(target=gateway.watch_master, args=(stop,), name="ros-master", daemon=True)
     watcher.start()
+    threading.Thread(target=gateway.forward_held, args=(stop,), name="held-commands", daemon=True).start()
     token = session.liveliness().declare_token(keys.alive("ros1"))
     logger.info("ros1 gateway up: %d joints; %s, %s, %s%s", len(robot.names), names.joint_states, names.gui,
                 names.command("{joint}"), f"; meshes at {gateway.mesh_url()}" if mesh_server else "")
@@ -554,6 +592,7 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
         gateway.close()
         ros_shutdown.shut_down("zensim ros1 stopping")
     c = gateway.counters
-    logger.info("%d ROS commands read, %d forwarded, %d rejected; %d joint states published",
-                c.commands_received, c.commands_forwarded, gateway.refusals.count, c.joint_states_published)
+    logger.info("%d ROS commands read, %d forwarded, %d shed, %d rejected; %d joint states published",
+                c.commands_received, c.commands_forwarded, c.commands_shed, gateway.refusals.count,
+                c.joint_states_published)
     return exit_code

@@ -11,7 +11,7 @@ from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
-from zensim.common.settings import CommonSettings
+from zensim.common.settings import CommonSettings, zero_or_at_least
 
 
 class Ros1Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -51,6 +51,10 @@ class Ros1Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     state_rate_hz: Annotated[float, msgspec.Meta(gt=0, le=1000)] = 100.0
     """Most joint states, odometry, IMU, TF and clock messages per second of sim time, Hz
     (the sim's state_rate_hz when lower)."""
+    command_rate_hz: Annotated[float, msgspec.Meta(ge=0, le=10000)] = 100.0
+    """Most commands passed on per second per ROS command topic (each joint's Float64 topic, the GUI's);
+    faster ones are shed, the newest kept and passed on in its turn; 0: no limit. The bridge sends
+    motor commands at 100 Hz: more targets per joint than that change nothing but the CPU load."""
     status_rate_hz: Annotated[float, msgspec.Meta(gt=0, le=100)] = 2.0
     """Rate of the gateway's status on state/ros1, Hz."""
     mesh_urls: Literal["http", "keep"] = "http"
@@ -73,3 +77,6 @@ class Ros1Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     ros_python_path: str = "/usr/lib/python3/dist-packages"
     """Where rospy is found when the Python running zensim cannot import it (Debian's ROS packages
     install there); searched after everything else, so the project's own packages win."""
+
+    def __post_init__(self) -> None:
+        zero_or_at_least(self.command_rate_hz, 1.0, "command_rate_hz")
