@@ -91,6 +91,25 @@ def test_init_refuses_a_bad_robot_scope_and_writes_nothing(tmp_path: Path, scope
     assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.skipif(os.geteuid() != 0, reason="making a folder another user owns needs root")
+@pytest.mark.parametrize("make, says", [
+    (lambda d: (d.mkdir(), os.chown(d, 65534, 65534)), "belongs to another user"),
+    (lambda d: (d.mkdir(), d.chmod(0o777)), "writable by others"),
+    (lambda d: (d.mkdir(), d.chmod(0o770)), "writable by others"),
+    (lambda d: ((d.parent / "real").mkdir(), d.symlink_to(d.parent / "real")), "symbolic link"),
+], ids=["other-owner", "world-writable", "group-writable", "symlink"])
+def test_init_refuses_an_empty_folder_someone_else_could_swap_files_in(tmp_path: Path, make, says: str) -> None:
+    """An empty folder owned by another user (or writable by others) was accepted: its owner could later swap
+    users.txt or router.json5 for their own."""
+    folder = tmp_path / "secrets"
+    make(folder)
+    done = subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(folder)], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 2 and says in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr
+    assert not any(folder.iterdir()), "nothing is written"
+
+
 def test_router_refuses_plain_tcp_wrong_password_and_foreign_certificates(
         secured: tuple[str, Service, Service], secrets_dir: Path, tmp_path: Path) -> None:
     endpoint, router, _ = secured

@@ -21,7 +21,9 @@ import base64
 import datetime
 import ipaddress
 import json
+import os
 import secrets
+import stat
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Final
@@ -167,6 +169,29 @@ def _json5(header: str, config: dict) -> str:
     return "// " + "\n// ".join(header.splitlines()) + "\n" + json.dumps(config, indent=2) + "\n"
 
 
+def check_own_folder(folder: Path) -> None:
+    """An existing folder must be ours alone: its owner could otherwise swap users.txt or router.json5 later
+    (whoever owns a folder may rename and replace the files in it, whatever their own modes).
+
+    Raises:
+        SecureConfigError: a symlink, a folder another user owns, or one others may write to.
+    """
+    try:
+        st = os.lstat(folder)
+    except FileNotFoundError:
+        return
+    if stat.S_ISLNK(st.st_mode):
+        raise SecureConfigError(f"{folder} is a symbolic link: give a real folder (or a new name)")
+    if not stat.S_ISDIR(st.st_mode):
+        raise SecureConfigError(f"{folder} is not a folder")
+    if st.st_uid != os.geteuid():
+        raise SecureConfigError(f"{folder} belongs to another user (uid {st.st_uid}), who could swap its files "
+                                "later: choose a new folder of your own")
+    if st.st_mode & 0o022:
+        raise SecureConfigError(f"{folder} is writable by others (mode {stat.S_IMODE(st.st_mode):o}), who could swap "
+                                "its files later: choose a new folder (or chmod 700 it first)")
+
+
 def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("tls/127.0.0.1:7447",),
          days: int = CERT_DAYS, robots: Mapping[str, Sequence[str]] | None = None) -> list[Path]:
     """Make a CA, the router's certificate, one certificate and password per role, and the configs.
@@ -194,6 +219,7 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = ("
                 check_robot_id(robot)
             except ValueError as exc:
                 raise SecureConfigError(str(exc)) from None
+    check_own_folder(folder)
     if folder.exists() and any(folder.iterdir()):
         raise SecureConfigError(f"{folder} is not empty: choose a new folder")
     folder.mkdir(parents=True, exist_ok=True)
