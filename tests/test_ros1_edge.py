@@ -178,3 +178,33 @@ def test_without_secure_dir_an_edge_beyond_loopback_starts_with_one_warning(tmp_
         gateway.send_signal(signal.SIGTERM)
         gateway.wait(10)
         log.close()
+
+
+def test_zensim_up_reports_a_gateway_whose_ros_node_was_killed_and_stops(tmp_path, robot_id) -> None:
+    """`rosnode kill` of the gateway under `zensim up --ros1`: the gateway exits 1, and `zensim up` says which
+    service died, stops the rest and exits 1 (it used to run on with a silent gateway)."""
+    from support import free_port, plain_client
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    ros = {"ROS_MASTER_URI": f"http://127.0.0.1:{free_port()}", "ROS_HOME": str(tmp_path / "ros")}
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ROS_")}
+    env.update(ros, ZENSIM_ROBOT_ID=robot_id, PYTHONUNBUFFERED="1", ZENSIM_SIM_MODE="fixed",
+               ZENSIM_ROS1_MESH_HTTP_PORT="0")
+    log_path = tmp_path / "up.log"
+    with log_path.open("wb") as log:
+        up = subprocess.Popen([sys.executable, "-m", "zensim", "up", "--router-endpoint", endpoint, "--viz", "false",
+                               "--ros1"], env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        with plain_client(endpoint, wait_for_router=True) as session:
+            wait_for(lambda: any(r.ok is not None for r in session.liveliness().get(
+                Keys(robot_id).alive("ros1"), timeout=1.0)), 90, "the gateway", 0.2)
+        node = f"/zensim_ros1_{robot_id}"
+        subprocess.run(["rosnode", "kill", node], env={**os.environ, **ros, "ROS_IP": "127.0.0.1"},
+                       capture_output=True, timeout=30, check=True)
+        assert up.wait(30) == 1, log_path.read_text()
+        text = log_path.read_text()
+        assert "shut down from outside" in text and "'ros1': 1" in text, text
+        assert "the ROS master exited with 0" in text, text
+    finally:
+        if up.poll() is None:
+            os.killpg(up.pid, signal.SIGKILL)
