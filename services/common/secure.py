@@ -169,6 +169,27 @@ def _json5(header: str, config: dict) -> str:
     return "// " + "\n// ".join(header.splitlines()) + "\n" + json.dumps(config, indent=2) + "\n"
 
 
+SESSION_LOG_TARGET: Final = "zenoh::api::session"
+"""Where zenoh logs a session's whole Config (password included) at debug level when it opens."""
+
+
+def password_printing_directive(rust_log: str) -> str | None:
+    """The RUST_LOG directive that would print a session's password in clear, or None.
+
+    tracing's filter enables a target by string prefix (`zenoh=debug` covers `zenoh::api::session`);
+    a directive with no target sets the level of everything. The router's access-control audit
+    (`zenoh::net::routing::interceptor::access_control=trace`) does not cover it.
+    """
+    for directive in rust_log.split(","):
+        target, _, level = directive.strip().rpartition("=")
+        if not target and "=" not in directive:
+            target, level = "", directive.strip()
+        target = target.split("[", 1)[0]
+        if level.strip().lower() in ("debug", "trace") and SESSION_LOG_TARGET.startswith(target):
+            return directive.strip()
+    return None
+
+
 def check_own_folder(folder: Path) -> None:
     """An existing folder must be ours alone: its owner could otherwise swap users.txt or router.json5 later
     (whoever owns a folder may rename and replace the files in it, whatever their own modes).
