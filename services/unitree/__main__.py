@@ -12,6 +12,7 @@ from zensim.common.entry import StartupError, fail, serve
 from zensim.common.logs import setup_logging
 from zensim.common.settings import settings_or_exit
 
+from .ddsbind import is_loopback
 from .settings import UnitreeSettings
 
 PROG = "zensim unitree"
@@ -22,7 +23,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     setup_logging(settings.log_level)
     try:  # DDS has no authentication: loopback unless asked (docs/security.md)
         check_edge("the Unitree DDS adapter", f"interface {settings.interface or '(any: Cyclone DDS chooses)'}",
-                   settings.interface == "lo", settings.zenoh.secure_dir, settings.open_edge,
+                   is_loopback(settings.interface), settings.zenoh.secure_dir, settings.open_edge,
                    logging.getLogger("zensim.unitree"))
     except StartupError as exc:
         return fail(PROG, str(exc))
