@@ -218,13 +218,14 @@ class HeldTargets:
         max_step = self.slew_rad_s * min(max(dt_s, 0.0), MAX_TICK_S)
         delta = self.target_q - self.q
         largest = float(np.max(np.abs(delta), initial=0.0))
-        if largest > max_step:
+        if largest <= max_step:
+            self.q[:] = self.target_q  # arrived: exactly the target, not q + (target - q) rounded
+        else:
             # Every joint moves by the same fraction of its way, so all arrive together: the pose
             # moves along a straight line in joint space. Clipping each joint alone let the hips and
             # ankles (0.45 rad from the squat) reach zero while the knees (0.9 rad) were still bent,
             # and the floating G1 fell over backwards.
-            delta *= max_step / largest
-        self.q += delta
+            self.q += delta * (max_step / largest)
         return self.q
 
     def gains(self) -> tuple[np.ndarray, np.ndarray]:
