@@ -71,3 +71,29 @@ def resolve_mesh(filename: str, urdf_dir: Path) -> Path:
                 raise RobotModelError(refusal)
             return candidate.resolve()
     raise FileNotFoundError(f"mesh {filename!r} not found; looked at {[str(c) for c in candidates]}")
+
+
+def read_mesh(resolved: Path) -> bytes:
+    """The bytes of a mesh `resolve_mesh` found at load time, only if it is still that file.
+
+    Bounds are checked when the description loads; a listed mesh swapped afterwards for a symlink
+    (or a folder on its way for a link elsewhere) would otherwise serve any file the process can read.
+    So the file is opened without following a final symlink, and the path the kernel actually opened
+    must be the one checked at load.
+
+    Raises:
+        OSError: the file is gone, is now a symlink, or resolves somewhere else than at load.
+    """
+    import os
+
+    fd = os.open(resolved, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    try:
+        opened = Path(os.readlink(f"/proc/self/fd/{fd}")) if Path("/proc/self/fd").is_dir() else resolved.resolve()
+        if opened != resolved:
+            raise OSError(f"{resolved.name} now resolves to another file than the one checked at load")
+        with os.fdopen(fd, "rb") as file:
+            fd = -1
+            return file.read()
+    finally:
+        if fd >= 0:
+            os.close(fd)

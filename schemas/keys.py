@@ -80,6 +80,7 @@ class Keys:
     ctl_loco: str
     loco_status: str
     remote: str
+    claim_any: str
 
     def __init__(self, robot: str = DEFAULT_ROBOT_ID) -> None:
         self.robot = check_robot_id(robot)
@@ -130,6 +131,10 @@ class Keys:
     def alive(self, service: str) -> str:
         """Liveliness token key of a service."""
         return f"{self.root}/alive/{service}"
+
+    def claim(self, nonce: str) -> str:
+        """Liveliness token key of one process's claim on this robot id (services/common/claim.py)."""
+        return f"{self.root}/claim/{nonce}"
 
     def table(self) -> tuple[KeyInfo, ...]:
         """The protocol table for this robot (served in RobotInfo.keys), from the topic registry."""

@@ -791,6 +791,10 @@ class Ros1Status(Message, tag="ros1_status", frozen=True, kw_only=True):
     """Times robot_description was set on the master (at start, after a sim or master restart)."""
     mesh_url: str = ""
     """Where the gateway serves the robot's meshes over http (robot_description points there); empty when it does not."""
+    commands_shed: int = 0
+    """Of those, valid ones replaced by a newer one on the same topic before their turn: each topic is passed
+    on at most `command_rate_hz` times a second (the newest value always goes), so a flood never reaches
+    the bridge and the sim."""
 
 
 class Ros2Status(Message, tag="ros2_status", frozen=True, kw_only=True):

@@ -217,6 +217,11 @@ MESH: Final[Topic[Message]] = Topic("info/mesh/{path}", "queryable", "sim", "any
                     payload="mesh bytes (application/octet-stream)", name="mesh_any", wildcard="**")
 ALIVE: Final[Topic[Message]] = Topic("alive/{service}", "liveliness", "each service: sim, bridge, viz, router, unitree, ros1, ros2, loco", "anyone",
                      "while running", payload="token", name="alive_any")
+CLAIM: Final[Topic[Message]] = Topic("claim/{nonce}", "liveliness", "sim, replay: one per process that serves the id",
+                                     "sim, replay (at start: is the id free?)", "while starting and running",
+                                     payload="token", name="claim_any",
+                                     note="(`{nonce}` is random; two processes that start at once with one id both see "
+                                          "each other's claim, and neither serves until it alone holds one)")
 ROUTER_ALIVE: Final[Topic[Message]] = Topic("alive", "liveliness", "router (one token whatever its `--robot-id`)",
                                             "viz (the router badge of every robot), anyone", "while running",
                                             payload="token", scope="router",
@@ -227,7 +232,7 @@ TOPICS: Final[tuple[Topic, ...]] = (
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
     WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE, WORLD_INFO,
-    ROBOT_INFO, URDF, MESH, ALIVE, ROUTER_ALIVE,
+    ROBOT_INFO, URDF, MESH, ALIVE, CLAIM, ROUTER_ALIVE,
     VELOCITY, ARMS, CTL_LOCO, LOCO_STATUS, REMOTE,
 )
 """Every topic, in the order the docs list them."""
@@ -273,11 +278,11 @@ class Role:
         return (*self.subscribes, *self.queries, *EVERY_ROLE_WATCHES)
 
 
-EVERY_ROLE_WATCHES: Final = ("alive/*",)
+EVERY_ROLE_WATCHES: Final = ("alive/*", "claim/*")
 """Liveliness every role may watch (liveliness subscribers and queries): who is up is no secret."""
 
 ROLES: Final[tuple[Role, ...]] = (
-    Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim", "alive/world")),
+    Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim", "alive/world", "claim/*")),
     Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
     Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (its sport service forwards to `zensim loco`)", publishes=("cmd/motors", "state/unitree", "cmd/velocity", "cmd/arms"), subscribes=("state/**", "cmd/remote"), queries=("info/**", "ctl/loco"), tokens=("alive/unitree",)),
@@ -285,7 +290,7 @@ ROLES: Final[tuple[Role, ...]] = (
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1", "cmd/velocity"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
     Role("ros2", "service", "the ROS 2 face (the bridge-facing side; its ROS 2 keys: docs/security.md)", publishes=("cmd/joints", "state/ros2"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros2",), ros2="write"),
     Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/**",)),
-    Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/**",), tokens=("alive/sim", "alive/replay")),
+    Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/**",), tokens=("alive/sim", "alive/replay", "claim/*")),
     Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**", "world/*"), ros2="write"),
     Role("viewer", "client", "read-only dashboards", subscribes=("state/**",), queries=("info/**", "world/info"), ros2="read"),
 )

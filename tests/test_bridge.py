@@ -137,8 +137,22 @@ class TestSlew:
         assert steps.max() <= 0.02 + 1e-12
         assert trajectory[0][2] == pytest.approx(0.02)
         assert trajectory[-1][2] == 1.5  # arrives and stays
-        assert trajectory[4][0] == -0.5  # a small move arrives in its own time
         assert trajectory[0][1] == 0.9  # untouched joints stay
+
+    def test_the_joints_of_one_change_arrive_together(self) -> None:
+        """Each joint covers the same fraction of its way per tick (a straight line in joint space): the
+        floating G1 sent from its squat to all zeros fell over when the hips and ankles (0.45 rad away)
+        arrived long before the knees (0.9 rad)."""
+        h = held(slew=2.0)
+        start = h.q.copy()
+        h.apply(targets(("elbow", "hip"), (1.5, -0.5)))
+        trajectory = np.array([h.step(0.01).copy() for _ in range(100)])
+        way = np.array([1.5, -0.5]) - start[[2, 0]]
+        fractions = (trajectory[:, [2, 0]] - start[[2, 0]]) / way
+        assert np.allclose(fractions[:, 0], fractions[:, 1])
+        assert fractions[0, 0] == pytest.approx(0.02 / 1.5)  # the largest move sets the pace: slew * dt
+        assert np.abs(np.diff(trajectory, axis=0)).max() <= 0.02 + 1e-12
+        assert trajectory[-1].tolist() == [-0.5, 0.9, 1.5]  # and all arrive
 
     def test_a_stall_does_not_turn_into_a_jump(self) -> None:
         h = held(slew=2.0)

@@ -162,6 +162,8 @@ def test_json_targets_move_the_arm_slew_limited_and_the_floating_g1_stays_up(
     put_json(zsession, rig.keys.joint_targets, {"names": list(target), "q": list(target.values())})
 
     wait_for(lambda: all(rig.tracks(j, q, 0.08) for j, q in target.items()), 15, "the arm to reach its target")
+    # The joint can be within 0.08 of its target while the commanded q still closes the last hundredths.
+    wait_for(lambda: rig.commanded(ARM[0]) == target[ARM[0]], 5, "the commanded shoulder at its target")
     # Slew limit, seen in the published commands: 0.8 rad at 2 rad/s takes 0.4 s, in small steps.
     shoulder = [(t, m.q[rig.index[ARM[0]]]) for t, m in rig.motors.items() if t >= start_at]
     arrived = next(t for t, q in shoulder if abs(q - target[ARM[0]]) < 1e-9)
@@ -178,6 +180,28 @@ def test_json_targets_move_the_arm_slew_limited_and_the_floating_g1_stays_up(
     assert heights and min(heights) > STANDING_Z_M, min(heights)
     status = rig.status.latest()
     assert status is not None and not status.watchdog and not status.fallen
+
+
+def test_every_joint_to_zero_at_once_leaves_the_floating_g1_standing(
+    start_service: Callable[..., Service], zsession: zenoh.Session, robot_id: str
+) -> None:
+    """What joint_state_publisher_gui's first message does (every joint 0), or the viewer's sliders all at 0:
+    from the squat, the bridge moves every joint along one straight line (all arrive together), and the
+    G1 stands up straight. Each joint at 2 rad/s on its own took the pelvis from 0.725 m to 0.07 m."""
+    rig = Rig(start_service, zsession, robot_id, ("--mode", "floating", "--rtf", "1"))
+    odom = Collector(zsession, rig.keys.odom, Odometry)
+    rig.start_bridge()
+    wait_for(lambda: rig.commanded(ELBOW) is not None, 5, "motor commands")
+    names = list(rig.info.joint_names)
+    start_at = time.monotonic()
+    put_json(zsession, rig.keys.joint_targets, {"names": names, "q": [0.0] * len(names)})
+    wait_for(lambda: all(abs(q) < 1e-9 for q in rig.motors.latest().q), 10, "the commands to reach zero")
+    time.sleep(1.0)  # a fall shows within a second of the arrival (measured: 1.5 s after the put)
+    heights = [m.pos[2] for t, m in odom.items() if t >= start_at]
+    assert min(heights) > STANDING_Z_M, f"the pelvis went down to {min(heights):.2f} m"
+    assert heights[-1] > 0.76, f"standing straight: {heights[-1]:.3f} m"
+    status = rig.status.latest()
+    assert status is not None and not status.fallen
 
 
 def test_scalar_keys_validation_and_clamping(fixed_rig: Rig, zsession: zenoh.Session) -> None:

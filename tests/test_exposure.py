@@ -111,6 +111,45 @@ def test_zensim_up_with_defaults_listens_on_loopback_only(net: Network, tmp_path
         up.stop(15)
 
 
+def children(pid: int) -> dict[int, str]:
+    """The direct children of `pid`: {pid: command line}."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    found[int(entry.name)] = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except (OSError, IndexError, ValueError):
+                continue
+    return found
+
+
+@pytest.mark.skipif(not Path("/usr/bin/rosmaster").exists(), reason="needs Debian's ROS 1")
+def test_zensim_up_ros1_keeps_the_ros_side_on_loopback_and_zensim_s_secrets_from_it(net: Network,
+                                                                                   tmp_path: Path) -> None:
+    """`zensim up --ros1` with no ROS_IP (ROS's own default: every interface): the master, the gateway's XML-RPC
+    and TCPROS servers all listen on loopback, no rosout listens anywhere, and the master's environment holds
+    nothing of zensim's (the viewer token once reached roslaunch's world-readable logs)."""
+    secret = "viewer-token-that-must-not-leak"
+    env = {k: v for k, v in env_without_network_settings().items() if not k.startswith("ROS_")}
+    env.update(ROS_HOME=str(tmp_path / "ros"), ZENSIM_VIZ_TOKEN=secret)
+    up = NsProcess(net, "solo", [sys.executable, "-m", "zensim", "up", "--ros1", "--viz", "false"], env, tmp_path,
+                   name="up")
+    try:
+        wait_for(lambda: check(net, "ros1") or not up.alive(), 120, "zensim up's ros1 gateway", interval_s=1.0)
+        assert up.alive(), up.log()
+        assert_nothing_exposed(up.pid)
+        masters = [pid for pid, command in children(up.pid).items() if "rosmaster" in command]
+        assert len(masters) == 1, children(up.pid)
+        master_env = Path(f"/proc/{masters[0]}/environ").read_bytes().split(b"\0")
+        assert not [v for v in master_env if v.startswith(b"ZENSIM_") or secret.encode() in v], master_env
+        assert b"ROS_IP=127.0.0.1" in master_env
+        logs = [p for p in (tmp_path / "ros").rglob("*") if p.is_file()]
+        assert not [p for p in logs if secret in p.read_text(errors="replace")], logs
+    finally:
+        up.stop(20)
+
+
 NOT_ZENOH = {"roscore"}
 """Compose services that are no Zenoh client (the ROS master of the ros1 profile): nothing to secure on Zenoh."""
 

@@ -85,3 +85,27 @@ def test_the_viz_does_not_send_such_a_mesh_to_browsers(tmp_path: Path, start_ser
     wait_for(lambda: "description of" in viz.log() or not viz.alive(), 60, "the viz to draw the local URDF")
     assert viz.alive(), viz.log()
     assert "not sent to browsers: mesh 'file:///etc/hostname'" in viz.log()
+
+
+@pytest.mark.parametrize("swap", ["file-for-symlink", "folder-for-symlink"])
+def test_a_mesh_swapped_for_a_symlink_after_load_is_not_read(tmp_path: Path, swap: str) -> None:
+    """Bounds are checked at load; read_mesh (what serving a mesh reads through) refuses a listed mesh that
+    was replaced afterwards by a symlink, or whose folder was, so it never serves another file."""
+    from zensim.robots.mesh_files import read_mesh, resolve_mesh
+
+    urdf = description(tmp_path / "robot", "meshes/base.stl")
+    resolved = resolve_mesh("meshes/base.stl", urdf.parent)
+    assert read_mesh(resolved) == tetra_stl()
+    secret = tmp_path / "secret.stl"
+    secret.write_bytes(b"not yours")
+    if swap == "file-for-symlink":
+        resolved.unlink()
+        resolved.symlink_to(secret)
+    else:
+        moved = resolved.parent.rename(tmp_path / "elsewhere")
+        (tmp_path / "elsewhere-link").mkdir()
+        (tmp_path / "elsewhere-link" / "base.stl").write_bytes(b"not yours either")  # a plain file, elsewhere
+        resolved.parent.symlink_to(tmp_path / "elsewhere-link")
+        assert moved.exists()
+    with pytest.raises(OSError):
+        read_mesh(resolved)

@@ -4,10 +4,13 @@ the GUI's moved sliders, the odometry's frames, mesh URLs."""
 from __future__ import annotations
 
 import math
+import subprocess
+from pathlib import Path
 
 import pytest
 
 from zensim.ros1.mapping import (
+    CommandGate,
     GuiChanges,
     InputError,
     P3dOdometry,
@@ -17,6 +20,7 @@ from zensim.ros1.mapping import (
     mesh_references,
     with_mesh_urls,
 )
+from support import REPO
 from zensim.schemas import JointTargets, Odometry
 
 ARM = RobotJoints(names=("shoulder", "elbow"), q_min=(-2.0, 0.0), q_max=(2.0, 2.5), run_id="r1", mesh_paths=())
@@ -83,6 +87,21 @@ def test_the_rate_gate_thins_a_faster_sim_and_starts_over_after_a_reset() -> Non
     assert gate.due(0.0)  # time went back (a reset): publish at once
 
 
+def test_the_command_gate_forwards_one_per_period_per_key_and_the_newest_of_a_burst_later() -> None:
+    gate: CommandGate[str, float] = CommandGate(100.0)
+    assert gate.offer("elbow", 0.1, 0.0) == (True, False)
+    assert gate.offer("knee", 0.2, 0.001) == (True, False), "another topic has its own budget"
+    assert gate.offer("elbow", 0.3, 0.002) == (False, False)
+    assert gate.offer("elbow", 0.4, 0.003) == (False, True), "a held one replaced is shed"
+    assert gate.due(0.005) == []
+    assert gate.due(0.0101) == [("elbow", 0.4)], "the newest of the burst goes in its turn"
+    assert gate.due(0.03) == []
+    assert gate.offer("elbow", 0.5, 0.015) == (False, False)
+    assert gate.offer("elbow", 0.6, 0.0202) == (True, True), "due and newer: sent at once, the held one shed"
+    unlimited: CommandGate[str, float] = CommandGate(0)
+    assert all(unlimited.offer("elbow", 0.1, 0.0) == (True, False) for _ in range(5))
+
+
 def test_odometry_is_p3d_s_pose_and_world_frame_twist() -> None:
     half = math.sqrt(0.5)
     odom = Odometry(sim_time_s=1.0, seq=1, pos=(1.0, 2.0, 0.8), quat_wxyz=(half, 0.0, 0.0, half),  # yaw +90 deg
@@ -115,3 +134,21 @@ def test_without_rospy_the_gateway_says_so_in_one_line() -> None:
     lines = [line for line in result.stderr.splitlines() if line.startswith("zensim ros1:")]
     assert len(lines) == 1 and "cannot import rospy" in lines[0] and "docs/ros.md" in lines[0], result.stderr
     assert "Traceback" not in result.stderr
+
+
+LAUNCH_FILES = sorted((REPO / "deploy").rglob("*.launch"))
+
+
+@pytest.mark.skipif(not Path("/usr/bin/roslaunch").exists(), reason="needs Debian's ROS 1 (roslaunch)")
+@pytest.mark.parametrize("launch", LAUNCH_FILES, ids=lambda p: str(p.relative_to(REPO)))
+def test_every_launch_file_passes_roslaunch_s_own_check(launch: Path) -> None:
+    """roslaunch's own check (rlutil.check_roslaunch, what `roslaunch-check` runs): the XML parses, every
+    node's package and program exist. A comment with two dashes in a row once made display.launch unreadable."""
+    check = "import sys, roslaunch.rlutil; print(roslaunch.rlutil.check_roslaunch(sys.argv[1]) or 'ok')"
+    result = subprocess.run(["/usr/bin/python3", "-c", check, str(launch)], capture_output=True, text=True,
+                            timeout=60, cwd=launch.parent)
+    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stdout + result.stderr
+
+
+def test_there_is_a_launch_file_to_check() -> None:
+    assert REPO / "deploy" / "ros1" / "display.launch" in LAUNCH_FILES

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from ros_graph import JSP_GUI, RSP, RVIZ_CONFIG, Roscore, Stack, Tool, Xvfb
-from support import Latest, ctl, wait_for
-from zensim.schemas import JointState, JointTargets, Keys, Ros1Status
+from support import REPO, Latest, ctl, wait_for
+from zensim.schemas import JointState, JointTargets, Keys, Odometry, Ros1Status
 
 KEYS = Keys("g1")
 BACKGROUND = (170, 200, 240)
@@ -45,11 +45,12 @@ def first_slider_groove(image: np.ndarray, width: int) -> tuple[int, int] | None
     return last_blue + int(after[0]) - 8, y
 
 
-@pytest.fixture
-def graph(tmp_path):
-    """A roscore, the fixed-base G1 (gravity off: any pose holds) with bridge and gateway, an X server."""
+@pytest.fixture(params=[("--mode", "fixed")])
+def graph(tmp_path, request):
+    """A roscore, the G1 with bridge and gateway, an X server. By default the fixed-base G1 (gravity off:
+    any pose holds); `@pytest.mark.parametrize("graph", [()], indirect=True)` for the floating one."""
     core = Roscore(tmp_path / "ros")
-    stack = Stack(core, tmp_path, sim_args=("--mode", "fixed"))
+    stack = Stack(core, tmp_path, sim_args=tuple(request.param))
     xvfb = Xvfb(tmp_path)
     tools: list[Tool] = []
 
@@ -159,3 +160,75 @@ def test_gui_rviz_draws_the_robot_in_the_sims_pose(graph, tmp_path) -> None:
     shutil.copy(tmp_path / "rviz-arm.png", tmp_path / "rviz.png")
     print(f"[ros1] rviz screenshots in {tmp_path}: robot {height} px tall; raised arm widened it "
           f"{right - left} -> {r2 - l2} px")
+
+
+def window_image(xvfb: Xvfb, window: str, path) -> np.ndarray:
+    """One window raised to the top and captured alone (RViz fills the screen; the GUI sits over it)."""
+    from PIL import Image
+
+    xvfb.run("xdotool", "windowraise", window)
+    xvfb.run("import", "-window", window, str(path))
+    with Image.open(path) as image:
+        return np.asarray(image.convert("RGB"))
+
+
+@pytest.mark.parametrize("graph", [()], indirect=True)
+def test_gui_display_launch_draws_the_standing_floating_g1_and_its_sliders_move_it(graph, tmp_path) -> None:
+    """`roslaunch deploy/ros1/display.launch` as shipped, beside the floating G1 (the seed's workflow): the GUI's
+    first message sets every joint to 0 and the G1 stands up straight instead of falling (the bridge moves
+    every joint of it together); RViz draws it standing; a slider moved with real key presses moves the joint."""
+    stack, xvfb, tool = graph
+    info = ctl(stack.session, KEYS.robot_info)
+    names, q_min, q_max = info["joint_names"], info["q_min"], info["q_max"]
+    assert names[0] == SLIDER
+    joints = Latest(stack.session, KEYS.joints, JointState)
+    odom = Latest(stack.session, KEYS.odom, Odometry)
+    sent = Latest(stack.session, KEYS.joint_targets, JointTargets)
+    sent.keep_history = True
+    heights: list[float] = []
+    watch = stack.session.declare_subscriber(KEYS.odom, lambda _: heights.append(odom.value.pos[2]) if odom.value else None)
+    launch = tool("roslaunch", str(REPO / "deploy" / "ros1" / "display.launch"))
+    gui = wait_for(lambda: xvfb.window("^Node: "), 90, "the GUI's window", 0.5)
+    wait_for(lambda: sent.history, 30, "the GUI's first message")
+    first = sent.history[0]  # the sliders' start values: 0 to their resolution (1/10000 of each range)
+    assert sorted(first.names) == sorted(names) and max(map(abs, first.q)) < 1e-3, "every joint to 0"
+    # Standing straight (0.79 m; the squat is 0.73 m) and never down on the way.
+    odom.wait(lambda o: o.pos[2] > 0.77, 20, "the G1 standing up straight")
+    settled = len(heights)
+    wait_for(lambda: len(heights) > settled + 200, 20, "two more seconds of odometry")
+    assert min(heights) > 0.6, f"the pelvis went down to {min(heights):.2f} m"
+
+    rviz = wait_for(lambda: xvfb.window("RViz"), 90, "RViz's window", 0.5)
+
+    def standing_drawn():
+        mask = robot_pixels(window_image(xvfb, rviz, tmp_path / "display-rviz.png"))
+        if mask.sum() < 5000:
+            return None
+        left, right, top, bottom = extent(mask)
+        return (left, right, top, bottom) if 300 < bottom - top < 750 and right - left < 0.5 * (bottom - top) else None
+
+    # No window manager: the GUI sits over RViz's 3D view, which repaints the uncovered part at its own
+    # slow pace (software GL): wait for a frame with the G1 alone, standing (much taller than wide).
+    xvfb.run("xdotool", "windowunmap", gui)
+    left, right, top, bottom = wait_for(standing_drawn, 120, "RViz to draw the standing G1", 1.0)
+    xvfb.run("xdotool", "windowmap", gui)
+
+    # The first slider (left_hip_pitch_joint): a click in its groove right of the handle (one page step, 10 of
+    # 10000) gives it the focus, then 300 presses of Right (one step each): +310/10000 of its range.
+    width = int(dict(line.split("=", 1) for line in xvfb.run("xdotool", "getwindowgeometry", "--shell", gui)
+                     .split() if "=" in line)["WIDTH"])
+    x, y = wait_for(lambda: first_slider_groove(window_image(xvfb, gui, tmp_path / "display-gui.png"), width), 20,
+                    "the GUI's sliders on screen", 0.5)
+    before = len(sent.history)
+    xvfb.run("xdotool", "mousemove", "--window", gui, str(x), str(y), "click", "1")
+    xvfb.run("xdotool", "key", "--repeat", "300", "--delay", "2", "Right", timeout_s=60)
+    expected = first.q[first.names.index(SLIDER)] + 310 / 10000 * (q_max[0] - q_min[0])
+    wait_for(lambda: len(sent.history) > before and abs(sent.history[-1].q[0] - expected) < 0.01, 20,
+             "the GUI to send the slider's new value")
+    moved = sent.history[before:]
+    assert all(t.names == (SLIDER,) for t in moved), "only the moved slider went to the bridge"
+    joints.wait(lambda s: abs(joint_q(s, names, SLIDER) - expected) < 0.05, 20, f"{SLIDER} at {expected:.3f}")
+    watch.undeclare()
+    assert launch.proc.poll() is None, launch.log()[-3000:]
+    print(f"[ros1] display.launch: standing at {heights[-1]:.3f} m (lowest {min(heights):.3f} m), RViz drew it "
+          f"{bottom - top} px tall, the slider moved {SLIDER} to {expected:.3f} rad")

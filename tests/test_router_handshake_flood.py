@@ -125,6 +125,13 @@ def test_sessions_still_join_while_hundreds_of_silent_connections_are_held(route
             sim.stop()
 
 
+def test_check_finds_the_router_whatever_the_robot_id(router_port, robot_id) -> None:
+    """The router serves every robot: `zensim check --service router --robot-id other` finds it (it once
+    looked for the router's per-robot token, which names only the id the router was started with)."""
+    result = zensim_check(router_port, f"{robot_id}-other", "router", 5)
+    assert result.returncode == 0 and "alive" in result.stdout, result.stdout + result.stderr
+
+
 def test_check_keeps_its_timeout_with_a_router_that_never_answers() -> None:
     """A listener that accepts and never speaks (a wedged router): `zensim check --timeout-s 3` ends in ~3 s."""
     with socket.socket() as server:

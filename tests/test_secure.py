@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import socket
 import subprocess
 import sys
 import time
@@ -89,6 +90,60 @@ def test_init_refuses_a_bad_robot_scope_and_writes_nothing(tmp_path: Path, scope
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and says in done.stderr, done.stderr
     assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="making a folder another user owns needs root")
+def _owned_by_nobody(folder: Path) -> None:
+    folder.mkdir()
+    os.chown(folder, 65534, 65534)
+
+
+@pytest.mark.parametrize("make, says", [
+    (_owned_by_nobody, "belongs to another user"),
+    (lambda d: (d.mkdir(), d.chmod(0o777)), "writable by others"),
+    (lambda d: (d.mkdir(), d.chmod(0o770)), "writable by others"),
+    (lambda d: ((d.parent / "real").mkdir(), d.symlink_to(d.parent / "real")), "symbolic link"),
+], ids=["other-owner", "world-writable", "group-writable", "symlink"])
+def test_init_refuses_an_empty_folder_someone_else_could_swap_files_in(tmp_path: Path, make, says: str) -> None:
+    """An empty folder owned by another user (or writable by others) was accepted: its owner could later swap
+    users.txt or router.json5 for their own."""
+    folder = tmp_path / "secrets"
+    make(folder)
+    done = subprocess.run([sys.executable, "-m", "zensim", "secure", "init", str(folder)], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 2 and says in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr
+    assert not any(folder.iterdir()), "nothing is written"
+
+
+@pytest.mark.parametrize("rust_log, refused", [
+    ("debug", True), ("zenoh=debug", True), ("info,zenoh::api=trace", True),
+    ("warn", False), ("warn,zenoh::net::routing::interceptor::access_control=trace", False),
+])
+def test_a_secured_service_refuses_a_rust_log_that_would_print_its_password(secrets_dir: Path, rust_log: str,
+                                                                           refused: bool) -> None:
+    """zenoh's debug log prints a session's whole config, the usrpwd password in clear: under --secure-dir a
+    service refuses such a RUST_LOG in one line (the router's scoped audit directive stays allowed)."""
+    password = next(line.split(":", 1)[1] for line in (secrets_dir / "users.txt").read_text().splitlines()
+                    if line.startswith("bridge:"))
+    # A router that accepts the TCP connection and never speaks: the bridge's session opens as far as a
+    # real one would (its config logged on the way), then waits; it is stopped after a few seconds.
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(4)
+        bridge = subprocess.Popen([sys.executable, "-m", "zensim", "bridge", "--secure-dir", str(secrets_dir),
+                                   "--zenoh-connect", f"tls/127.0.0.1:{silent.getsockname()[1]}"],
+                                  env=dict(os.environ, RUST_LOG=rust_log), stdout=subprocess.PIPE,
+                                  stderr=subprocess.STDOUT, text=True)
+        try:
+            output, _ = bridge.communicate(timeout=5)
+        except subprocess.TimeoutExpired:
+            bridge.terminate()
+            output, _ = bridge.communicate(timeout=20)
+    assert password not in output, "the password in the log"
+    assert ("would print this service's password" in output) == refused, output[-2000:]
+    if refused:
+        assert bridge.returncode == 2
 
 
 def test_router_refuses_plain_tcp_wrong_password_and_foreign_certificates(

@@ -15,6 +15,7 @@ from zensim.common.entry import fail
 from zensim.common.session import StartupError, open_session
 from zensim.common.settings import ZenohSettings, settings_or_exit
 from zensim.schemas import Keys
+from zensim.schemas.topics import ROUTER_ALIVE
 
 
 class CheckSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -22,9 +23,9 @@ class CheckSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
 
     env_prefix: ClassVar[str] = "CHECK"
     service: str = "sim"
-    """Service whose liveliness token to look for (sim, bridge, viz, router, unitree)."""
+    """Service whose liveliness token to look for (sim, bridge, viz, router, unitree, ros1)."""
     robot_id: str = "g1"
-    """Robot id."""
+    """Robot id (a router serves every robot: `--service router` finds it whatever the id)."""
     timeout_s: Annotated[float, msgspec.Meta(ge=0.1, le=3600)] = 5.0
     """Give up after this long."""
     zenoh: ZenohSettings = ZenohSettings()
@@ -44,9 +45,20 @@ def is_alive(session, key: str, timeout_s: float) -> bool:
         time.sleep(0.1)
 
 
+def alive_key(service: str, robot_id: str) -> str:
+    """The token that says `service` is up for `robot_id`.
+
+    The router serves every robot: it announces `zensim/@router/alive` whatever id it was started
+    with (its `alive/router` names only that one id), so a check for another robot still finds it.
+    """
+    if service == "router":
+        return ROUTER_ALIVE.full_key()
+    return Keys(robot_id).alive(service)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(CheckSettings, argv, "zensim check")
-    key = Keys(settings.robot_id).alive(settings.service)
+    key = alive_key(settings.service, settings.robot_id)
     started = time.monotonic()
     try:  # the whole check, the session's open included, keeps to --timeout-s
         session = open_session(settings.zenoh, claim_meeting_point=False, timeout_s=settings.timeout_s)

@@ -5,7 +5,8 @@
 it too (the sport service forwards to it): the bridge and the walking controller both command every
 motor, so one runs at a time. A robot without a walking controller: `zensim loco` says so and exits 0,
 and the rest run on.
-`zensim up --ros1` adds the ROS 1 gateway, and a `roscore` when none answers at ROS_MASTER_URI (docs/ros.md).
+`zensim up --ros1` adds the ROS 1 gateway, and a ROS master when none answers at ROS_MASTER_URI (docs/ros.md),
+both on loopback unless `--ros1-host` (or ROS_IP) names another address: ROS 1 has no authentication.
 `zensim up --ros2` adds the ROS 2 face (`zensim ros2`: rmw_zenoh's keys on the router, and DDS; docs/ros.md).
 
 The same four services as compose.yaml, wired the same way: a router listens
@@ -31,7 +32,9 @@ from typing import ClassVar, Final
 
 import msgspec
 
+from zensim.common.edges import check_edge, is_loopback
 from zensim.common.logs import setup_logging
+from zensim.common.session import StartupError
 from zensim.common.settings import (AMBIGUOUS_LEGACY, ENV_PREFIX, LOCAL_ROUTER_ENDPOINT, SECURE_LOCAL_ROUTER_ENDPOINT, describe,
                                     env_names, settings_or_exit)
 from zensim.common.shutdown import stop_on_signals
@@ -56,7 +59,14 @@ class UpSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     loco: bool = False
     """Run the walking controller (`zensim loco`: cmd/velocity, ctl/loco) in place of the bridge; on with --unitree."""
     ros1: bool = False
-    """Also run the ROS 1 gateway (`zensim ros1`), and `roscore` when no master answers at ROS_MASTER_URI."""
+    """Also run the ROS 1 gateway (`zensim ros1`), and a ROS master when none answers at ROS_MASTER_URI."""
+    ros1_host: str = ""
+    """Address the ROS 1 side (the master zensim up starts, the gateway's servers) binds and announces
+    (`ROS_IP`); empty: ROS_IP from the environment, else 127.0.0.1. Beyond loopback anyone who reaches it
+    drives the robot: ROS 1 has no authentication."""
+    open_edges: bool = False
+    """With --secure-dir, let the ROS 1 and Unitree DDS edges listen beyond loopback anyway (they are
+    outside Zenoh's authentication: docs/security.md)."""
     ros2: bool = False
     """Also run the ROS 2 face (`zensim ros2`): ROS 2 nodes on rmw_zenoh (this router) or DDS see the robot."""
     log_level: str = "INFO"
@@ -87,7 +97,7 @@ def settings_of(name: str) -> type[msgspec.Struct]:
 
 
 def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir: str | None = None,
-                unitree: bool = False) -> dict[str, str]:
+                unitree: bool = False, open_edges: bool = False) -> dict[str, str]:
     """The environment of one service: no `ZENSIM_*` variable but its own, and the way to the router.
 
     A service never sees another service's variables, so `ZENSIM_BRIDGE_RATE_HZ` cannot reach the viz.
@@ -98,6 +108,8 @@ def service_env(name: str, endpoint: str, environ: Mapping[str, str], secure_dir
     env.update(ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
     if secure_dir:
         env["ZENSIM_SECURE_DIR"] = secure_dir
+    if open_edges and name in ("ros1", "unitree"):
+        env[f"ZENSIM_{name.upper()}_OPEN_EDGE"] = "true"
     if unitree and name == "sim" and "ZENSIM_STATE_RATE_HZ" not in env:
         env.setdefault("ZENSIM_SIM_STATE_RATE_HZ", "500")  # one LowState_ per 2 ms physics step
     if name == "router":
@@ -142,11 +154,41 @@ def master_answers(uri: str, timeout_s: float = 1.0) -> bool:
         return False
 
 
-def start_roscore(uri: str) -> subprocess.Popen | None:
-    """`roscore -p PORT` for a local ROS_MASTER_URI no master answers at; None when one answers.
+MASTER_ENV = ("PATH", "HOME", "USER", "LOGNAME", "LANG", "LC_ALL", "LC_CTYPE", "TZ", "TMPDIR", "PYTHONPATH",
+              "LD_LIBRARY_PATH", "CMAKE_PREFIX_PATH", "PKG_CONFIG_PATH")
+"""Variables the ROS master gets besides ROS's own (`ROS_*`): what finds its programs and libraries.
+Nothing else: roslaunch writes its environment into world-readable logs, and zensim's (a viewer token,
+a secure folder) is none of its business."""
+
+
+def master_env(environ: Mapping[str, str], host: str) -> dict[str, str]:
+    """The ROS master's environment: ROS's variables, MASTER_ENV, and where it listens (ROS_IP)."""
+    env = {key: value for key, value in environ.items() if key in MASTER_ENV or key.startswith("ROS_")}
+    return ros_address_env(env, host)
+
+
+def ros_address_env(env: dict[str, str], host: str) -> dict[str, str]:
+    """`env` with ROS told to bind and announce `host` (ROS_IP; ROS_HOSTNAME would win over it)."""
+    env.pop("ROS_HOSTNAME", None)
+    env["ROS_IP"] = host
+    return env
+
+
+def ros1_address(settings: UpSettings, environ: Mapping[str, str]) -> str:
+    """Where the ROS 1 side listens: --ros1-host, else ROS_IP, else loopback (ROS_HOSTNAME is only a name)."""
+    return settings.ros1_host or environ.get("ROS_IP", "") or "127.0.0.1"
+
+
+def start_roscore(uri: str, env: Mapping[str, str] | None = None) -> subprocess.Popen | None:
+    """A ROS master (`rosmaster --core -p PORT`) for a local ROS_MASTER_URI no master answers at; None
+    when one answers.
+
+    roscore would also start rosout, whose XML-RPC server (roscpp's) listens on every interface
+    whatever ROS_IP says: the master alone keeps the ROS side on loopback. `rosrun rosout rosout`
+    adds the log aggregator for whoever wants it (docs/ros.md).
 
     Raises:
-        OSError: roscore is not installed, or the URI names another host.
+        OSError: ROS is not installed, or the URI names another host.
     """
     from urllib.parse import urlsplit
 
@@ -156,8 +198,9 @@ def start_roscore(uri: str) -> subprocess.Popen | None:
     parts = urlsplit(uri)
     if parts.hostname not in ("localhost", "127.0.0.1", "::1"):
         raise OSError(f"no ROS master answers at {uri}, and zensim up starts one only on this machine")
-    proc = subprocess.Popen(["roscore", "-p", str(parts.port or 11311)], start_new_session=True)
-    logger.info("started roscore on port %d (pid %d)", parts.port or 11311, proc.pid)
+    proc = subprocess.Popen(["rosmaster", "--core", "-p", str(parts.port or 11311)], start_new_session=True,
+                            env=None if env is None else dict(env))
+    logger.info("started the ROS master on port %d (pid %d)", parts.port or 11311, proc.pid)
     deadline = time.monotonic() + 30
     while not master_answers(uri):
         if proc.poll() is not None or time.monotonic() > deadline:
@@ -186,10 +229,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     names = [name for name in SERVICES if name not in OPTIONAL_SERVICES and (settings.viz or name != "viz")]
     roscore = None
+    ros_host = ros1_address(settings, os.environ)
     if settings.ros1:
         names.append("ros1")
         try:
-            roscore = start_roscore(os.environ.get("ROS_MASTER_URI", ROS_MASTER_DEFAULT))
+            check_edge("the ROS 1 side (master and gateway)", f"{ros_host} (--ros1-host / ROS_IP)",
+                       is_loopback(ros_host), settings.secure_dir, settings.open_edges, logger, "--open-edges true")
+        except StartupError as exc:
+            logger.error("%s", exc)
+            return 2
+        try:
+            roscore = start_roscore(os.environ.get("ROS_MASTER_URI", ROS_MASTER_DEFAULT),
+                                    master_env(os.environ, ros_host))
         except OSError as exc:
             logger.error("--ros1: %s (install ROS 1: docs/ros.md)", exc)
             return 2
@@ -204,12 +255,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     procs: dict[str, subprocess.Popen] = {}
     stop = stop_on_signals()
     for name in names:
+        env = service_env(name, endpoint, os.environ, settings.secure_dir, settings.unitree, settings.open_edges)
+        if name == "ros1":
+            env = ros_address_env(env, ros_host)
         # Own process group: a terminal's Ctrl-C reaches only us, and we stop the children in order.
-        procs[name] = subprocess.Popen(
-            [sys.executable, "-m", "zensim", name],
-            env=service_env(name, endpoint, os.environ, settings.secure_dir, settings.unitree),
-            start_new_session=True,
-        )
+        procs[name] = subprocess.Popen([sys.executable, "-m", "zensim", name], env=env, start_new_session=True)
         logger.info("started %s (pid %d)", name, procs[name].pid)
     exit_code = 0
     while not stop.is_set():
@@ -237,11 +287,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             exit_code = 1
         logger.info("%s exited with %s", name, proc.returncode)
     if roscore is not None:
-        roscore.send_signal(signal.SIGINT)  # roscore stops its rosmaster and rosout on SIGINT
+        roscore.send_signal(signal.SIGINT)  # as a terminal's Ctrl-C
         try:
             roscore.wait(STOP_TIMEOUT_S)
         except subprocess.TimeoutExpired:
             os.killpg(roscore.pid, signal.SIGKILL)
             roscore.wait()
-        logger.info("roscore exited with %s", roscore.returncode)
+        logger.info("the ROS master exited with %s", roscore.returncode)
     return exit_code

@@ -7,7 +7,8 @@ No zenoh here, so every rule can be tested without a network:
   already checked once, by the schema (JointTargets), when it was decoded;
 - targets beyond the joint limits are clamped, and the clamped joints are reported;
 - the commanded q moves toward the held target by at most `slew_rad_s * dt` per tick, so a
-  slider jump does not throw the robot over (a PD-only robot has no balance to catch it);
+  slider jump does not throw the robot over (a PD-only robot has no balance to catch it), and
+  every joint of a change arrives at the same moment (one straight line in joint space);
 - when the sim starts a new episode (SimStatus.episode: a reset, a mode switch, a restart) the held
   targets become the (new) mode's default pose, since the robot was just put there and stale
   targets would yank it away.
@@ -215,7 +216,16 @@ class HeldTargets:
             self.q[:] = self.target_q
             return self.q
         max_step = self.slew_rad_s * min(max(dt_s, 0.0), MAX_TICK_S)
-        self.q += np.clip(self.target_q - self.q, -max_step, max_step)
+        delta = self.target_q - self.q
+        largest = float(np.max(np.abs(delta), initial=0.0))
+        if largest <= max_step:
+            self.q[:] = self.target_q  # arrived: exactly the target, not q + (target - q) rounded
+        else:
+            # Every joint moves by the same fraction of its way, so all arrive together: the pose
+            # moves along a straight line in joint space. Clipping each joint alone let the hips and
+            # ankles (0.45 rad from the squat) reach zero while the knees (0.9 rad) were still bent,
+            # and the floating G1 fell over backwards.
+            self.q += delta * (max_step / largest)
         return self.q
 
     def gains(self) -> tuple[np.ndarray, np.ndarray]:

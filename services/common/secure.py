@@ -21,7 +21,9 @@ import base64
 import datetime
 import ipaddress
 import json
+import os
 import secrets
+import stat
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Final
@@ -200,6 +202,50 @@ def _json5(header: str, config: dict) -> str:
     return "// " + "\n// ".join(header.splitlines()) + "\n" + json.dumps(config, indent=2) + "\n"
 
 
+SESSION_LOG_TARGET: Final = "zenoh::api::session"
+"""Where zenoh logs a session's whole Config (password included) at debug level when it opens."""
+
+
+def password_printing_directive(rust_log: str) -> str | None:
+    """The RUST_LOG directive that would print a session's password in clear, or None.
+
+    tracing's filter enables a target by string prefix (`zenoh=debug` covers `zenoh::api::session`);
+    a directive with no target sets the level of everything. The router's access-control audit
+    (`zenoh::net::routing::interceptor::access_control=trace`) does not cover it.
+    """
+    for directive in rust_log.split(","):
+        target, _, level = directive.strip().rpartition("=")
+        if not target and "=" not in directive:
+            target, level = "", directive.strip()
+        target = target.split("[", 1)[0]
+        if level.strip().lower() in ("debug", "trace") and SESSION_LOG_TARGET.startswith(target):
+            return directive.strip()
+    return None
+
+
+def check_own_folder(folder: Path) -> None:
+    """An existing folder must be ours alone: its owner could otherwise swap users.txt or router.json5 later
+    (whoever owns a folder may rename and replace the files in it, whatever their own modes).
+
+    Raises:
+        SecureConfigError: a symlink, a folder another user owns, or one others may write to.
+    """
+    try:
+        st = os.lstat(folder)
+    except FileNotFoundError:
+        return
+    if stat.S_ISLNK(st.st_mode):
+        raise SecureConfigError(f"{folder} is a symbolic link: give a real folder (or a new name)")
+    if not stat.S_ISDIR(st.st_mode):
+        raise SecureConfigError(f"{folder} is not a folder")
+    if st.st_uid != os.geteuid():
+        raise SecureConfigError(f"{folder} belongs to another user (uid {st.st_uid}), who could swap its files "
+                                "later: choose a new folder of your own")
+    if st.st_mode & 0o022:
+        raise SecureConfigError(f"{folder} is writable by others (mode {stat.S_IMODE(st.st_mode):o}), who could swap "
+                                "its files later: choose a new folder (or chmod 700 it first)")
+
+
 def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = (SECURE_LOCAL_ROUTER_ENDPOINT,),
          days: int = CERT_DAYS, robots: Mapping[str, Sequence[str]] | None = None,
          ros_domains: Sequence[int] = DEFAULT_ROS_DOMAINS) -> list[Path]:
@@ -229,6 +275,7 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = (S
                 check_robot_id(robot)
             except ValueError as exc:
                 raise SecureConfigError(str(exc)) from None
+    check_own_folder(folder)
     if folder.exists() and any(folder.iterdir()):
         raise SecureConfigError(f"{folder} is not empty: choose a new folder")
     folder.mkdir(parents=True, exist_ok=True)

@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import threading
 import time
 from collections.abc import Mapping
 
 import zenoh
 
-from .secure import SecureConfigError, role_config
+from .secure import SecureConfigError, password_printing_directive, role_config
 from .settings import LOCAL_ROUTER_ENDPOINT, ZenohSettings
 from .shutdown import connecting
 
@@ -147,6 +148,11 @@ def open_session(settings: ZenohSettings, role: str = "viewer", claim_meeting_po
         StartupError: the config file, the secure folder, an endpoint or a port is refused, or no router
             answered within `timeout_s`; the text names the setting.
     """
+    leak = password_printing_directive(os.environ.get("RUST_LOG", "")) if settings.secure_dir else None
+    if leak and role != "router":  # the router's config names users.txt, never a password
+        raise StartupError(f"RUST_LOG={leak} would print this service's password in clear (zenoh logs a session's "
+                           "whole config at debug level): with --secure-dir raise only the modules you need "
+                           "(docs/security.md)")
     if claim_meeting_point and _uses_meeting_point(settings):
         config = _config(settings, role, True, extra)
         try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from zensim.common.entry import fail, serve
+from zensim.common.entry import StartupError, fail, serve
 from zensim.common.logs import setup_logging
 from zensim.common.settings import settings_or_exit
 
@@ -44,7 +44,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fail(PROG, f"cannot import rospy ({missing}): install ROS 1 (Debian: apt-get install python3-rospy "
                           "python3-sensor-msgs python3-nav-msgs python3-rosgraph-msgs python3-tf2-msgs) or point "
                           "--ros-python-path at the folder that holds rospy (see docs/ros.md)")
-    from .service import run
+    from .service import check_ros_edge, run
+
+    try:  # ROS 1 has no authentication: loopback unless asked (docs/security.md)
+        check_ros_edge(settings)
+    except StartupError as exc:
+        return fail(PROG, str(exc))
 
     # The gateway sends what the bridge's clients send (cmd/joints, cmd/joint/*) and reads what they
     # read: its own role in a secured setup (docs/security.md).

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 from urllib.parse import quote
 
 # The rules both ROS gateways share live in one place; service.py takes them from here.
@@ -27,6 +28,10 @@ from zensim.common.ros_rules import (  # noqa: F401 - re-exported
 )
 from zensim.schemas import JointTargets
 from zensim.schemas.keys import mesh_key_path
+
+K = TypeVar("K")
+V = TypeVar("V")
+
 
 # --- names ------------------------------------------------------------------------------
 
@@ -94,6 +99,48 @@ class GuiChanges:
     def forget(self) -> None:
         """Start over (another robot)."""
         self._last.clear()
+
+
+class CommandGate(Generic[K, V]):
+    """At most one forward per key per `1 / rate_hz` s of wall time; what comes faster is held, newest wins.
+
+    A valid flood on one ROS topic (a script publishing Float64 at 10 kHz) would otherwise become as
+    many zenoh puts, each decoded by the bridge, and starve the sim of CPU. The first command after a
+    quiet spell goes out at once; the ones that follow within the period wait, each replacing the
+    last, and the one left is forwarded when its time comes (`due`), so the newest value always
+    arrives. The replaced ones are shed, and counted.
+
+    Args:
+        rate_hz: forwards per key per second; 0 forwards everything at once (no shedding).
+    """
+
+    def __init__(self, rate_hz: float) -> None:
+        self.period_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
+        self._last: dict[K, float] = {}
+        self._held: dict[K, V] = {}
+
+    def offer(self, key: K, value: V, now: float) -> tuple[bool, bool]:
+        """(forward it now, a held value was shed): a held one is replaced by `value`."""
+        last = self._last.get(key)
+        if last is None or now - last >= self.period_s:
+            self._last[key] = now
+            shed = self._held.pop(key, None) is not None
+            return True, shed
+        shed = key in self._held
+        self._held[key] = value
+        return False, shed
+
+    def due(self, now: float) -> list[tuple[K, V]]:
+        """The held values whose period has passed, to forward now (and forget)."""
+        ready = [(key, value) for key, value in self._held.items() if now - self._last[key] >= self.period_s]
+        for key, _ in ready:
+            del self._held[key]
+            self._last[key] = now
+        return ready
+
+    def forget(self) -> None:
+        """Drop what is held (a new robot: its joints may differ)."""
+        self._held.clear()
 
 
 # --- robot_description ------------------------------------------------------------------------

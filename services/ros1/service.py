@@ -23,6 +23,7 @@ The rules (names, checks, the odometry's frames, mesh URLs) live in mapping.py.
 from __future__ import annotations
 
 import logging
+import os
 import socket
 import threading
 import time
@@ -41,26 +42,38 @@ from sensor_msgs.msg import JointState as RosJointState
 from std_msgs.msg import Float64
 from tf2_msgs.msg import TFMessage
 
+from zensim.common.edges import check_edge, is_loopback
 from zensim.common.logs import FORMAT, RateLimitedLog
 from zensim.common.robot_info import fetch_robot
 from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
-from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros1Status, SimStatus, VelocityCommand,
-                            encoding_of, topics)
+from zensim.schemas import (Codec, DecodeError, Imu, JointState, JointTargets, Keys, Odometry, Ros1Status, SimStatus,
+                            VelocityCommand, bounded, encoding_of, topics)
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
 
-from .mapping import GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, resolve, with_mesh_urls, xyzw
+from .mapping import (CommandGate, GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, resolve,
+                      with_mesh_urls, xyzw)
 from .meshserver import MeshServer
 from .settings import Ros1Settings
 
 logger = logging.getLogger("zensim.ros1")
 
+CMD_VEL_KEY = "/cmd_vel"
+"""The command gate's key for /cmd_vel (joint topics are keyed by joint name)."""
+GUI_KEY = "/gui"
+"""The command gate's key for the GUI's topic (joint names never start with `/`)."""
 ROS_QUEUE = 10
 """Depth of each rospy publisher's and subscriber's queue: the oldest message is dropped beyond it."""
 MASTER_CHECK_S = 1.0
 """How often the gateway asks the master whether it is still the same one."""
 MASTER_TIMEOUT_S = 2.0
 """Longest one question to the master may take."""
+ROS_SHUTDOWN_S = 1.0
+"""Longest rospy's own shutdown (it unregisters every topic from the master, with no timeout) may take:
+a frozen master never answers, and SIGTERM must still end the process."""
+STUCK_EXIT_S = 4.0
+"""After SIGTERM, how long the gateway may stay inside a call to a master that does not answer (rospy's
+init_node, set_param) before it leaves without finishing it."""
 
 
 def names_of(settings: Ros1Settings) -> RosNames:
@@ -77,6 +90,7 @@ class Counters:
         self.sim_time_s = 0.0
         self.commands_received = 0
         self.commands_forwarded = 0
+        self.commands_shed = 0
         self.last_command: float | None = None
         self.description_updates = 0
         self.master_restarts = 0
@@ -103,6 +117,8 @@ class Gateway:
         self._episode = ""
         self._cap_bytes = 0
         self._gui_changes = GuiChanges()
+        self._command_gate: CommandGate[str, float | JointTargets | VelocityCommand] = CommandGate(settings.command_rate_hz)
+        """Per topic (a joint's name, or GUI_KEY): at most command_rate_hz forwards a second; guarded by _lock."""
         self._command_subscribers: list[rospy.Subscriber] = []
         self._codecs: dict[type, Codec[Any]] = {JointState: Codec(JointState), Odometry: Codec(Odometry),
                                                 Imu: Codec(Imu), SimStatus: Codec(SimStatus)}
@@ -154,6 +170,7 @@ class Gateway:
             ]
             with self._lock:
                 self._gui_changes.forget()
+                self._command_gate.forget()
         if self._mesh_server is not None:
             self._mesh_server.serve_robot(robot.mesh_paths)
         self.set_params()
@@ -173,9 +190,7 @@ class Gateway:
     def mesh_url(self) -> str:
         if self._mesh_server is None:
             return ""
-        host = self._settings.mesh_http_host or self._settings.mesh_http_bind
-        if host in ("0.0.0.0", "::", ""):
-            host = socket.gethostname()
+        host = mesh_host(self._settings)
         if ":" in host:
             host = f"[{host}]"
         return f"http://{host}:{self._mesh_server.port}"
@@ -266,11 +281,6 @@ class Gateway:
             self.counters.commands_received += 1
             return self._robot
 
-    def _forwarded(self) -> None:
-        with self._lock:
-            self.counters.commands_forwarded += 1
-            self.counters.last_command = time.monotonic()
-
     def _on_command(self, message: Float64, joint: str) -> None:
         robot = self._received()
         topic = self.names.command(joint)
@@ -281,9 +291,7 @@ class Gateway:
         except (InputError, TypeError) as exc:
             self.refusals.refuse(topic, str(exc))
             return
-        self._session.put(self._keys.joint_target(joint), msgspec.msgpack.encode(value),
-                          encoding=self._scalar_encoding)
-        self._forwarded()
+        self._offer(joint, value)
 
     def _on_gui(self, message: RosJointState) -> None:
         robot = self._received()
@@ -294,11 +302,44 @@ class Gateway:
         except (InputError, TypeError) as exc:
             self.refusals.refuse(self.names.gui, str(exc))
             return
+        self._offer(GUI_KEY, targets)
+
+    def _offer(self, key: str, value: float | JointTargets | VelocityCommand) -> None:
+        """A valid command through the gate: forwarded now, or held for its turn (a held one is shed)."""
         with self._lock:  # rospy calls back on one thread per publisher: two GUIs, two threads
-            changed = self._gui_changes.changed(targets)
-        if changed is not None:
+            forward_now, shed = self._command_gate.offer(key, value, time.monotonic())
+            self.counters.commands_shed += shed
+        if forward_now:
+            self._forward(key, value)
+
+    def forward_held(self, stop: threading.Event) -> None:
+        """Forward each held command when its turn comes (the newest of a burst always arrives)."""
+        period_s = self._command_gate.period_s
+        if period_s <= 0:
+            return
+        while not stop.wait(period_s / 2):
+            with self._lock:
+                ready = self._command_gate.due(time.monotonic())
+            for key, value in ready:
+                self._forward(key, value)
+
+    def _forward(self, key: str, value: float | JointTargets | VelocityCommand) -> None:
+        if isinstance(value, VelocityCommand):
+            self._velocity.put(value)
+        elif isinstance(value, JointTargets):
+            # The sliders that moved since the last forward: computed at forward time, so a GUI message
+            # shed while held loses no slider that the newer one still holds.
+            with self._lock:
+                changed = self._gui_changes.changed(value)
+            if changed is None:
+                return
             self._targets.put(changed)
-            self._forwarded()
+        else:
+            self._session.put(self._keys.joint_target(key), msgspec.msgpack.encode(value),
+                              encoding=self._scalar_encoding)
+        with self._lock:
+            self.counters.commands_forwarded += 1
+            self.counters.last_command = time.monotonic()
 
     def _on_cmd_vel(self, message: Twist) -> None:
         """The classic /cmd_vel: linear x, y and angular z to the walking controller (`zensim loco`)."""
@@ -310,8 +351,7 @@ class Gateway:
         except (ValueError, TypeError) as exc:  # NaN, absurd: the schema's own checks
             self.refusals.refuse(self._cmd_vel_topic, str(exc))
             return
-        self._velocity.put(command)
-        self._forwarded()
+        self._offer(CMD_VEL_KEY, command)  # shed like the joint commands: a Twist flood is one put per period
 
     # --- the master ------------------------------------------------------------------------------
 
@@ -370,6 +410,7 @@ class Gateway:
                 last_error=self.refusals.last_error,
                 command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
                 description_updates=c.description_updates, mesh_url=self.mesh_url(),
+                commands_shed=c.commands_shed,
             )
         self._status.put(status)
 
@@ -388,6 +429,37 @@ class _TimeoutTransport(xmlrpc.client.Transport):
         connection = super().make_connection(host)
         connection.timeout = MASTER_TIMEOUT_S
         return connection
+
+
+def mesh_host(settings: Ros1Settings) -> str:
+    """The host name robot_description's mesh URLs name (and so the Host header RViz sends)."""
+    host = settings.mesh_http_host or settings.mesh_http_bind
+    return socket.gethostname() if host in ("0.0.0.0", "::", "") else host
+
+
+def ros_bind_address() -> str:
+    """The address rospy binds the node's XML-RPC and TCPROS servers to: loopback unless ROS_IP or
+    ROS_HOSTNAME says otherwise (rospy alone would bind every interface when neither is set)."""
+    import rosgraph.network
+
+    if rosgraph.network.get_address_override() is None:
+        os.environ["ROS_IP"] = "127.0.0.1"  # read by rospy's init_node: how a ROS node is told where to listen
+    return rosgraph.network.get_bind_address()
+
+
+def check_ros_edge(settings: Ros1Settings) -> None:
+    """Loopback unless ROS_IP / ROS_HOSTNAME ask otherwise; beyond it, warn, or refuse under --secure-dir
+    without --open-edge (services/common/edges.py).
+
+    Raises:
+        StartupError: beyond loopback under --secure-dir without --open-edge.
+    """
+    import rosgraph.network
+
+    bind = ros_bind_address()
+    where = f"{bind} (ROS_IP / ROS_HOSTNAME {rosgraph.network.get_address_override()})"
+    check_edge("the ROS 1 gateway (its XML-RPC and TCPROS servers)", where, is_loopback(bind),
+               settings.zenoh.secure_dir, settings.open_edge, logger)
 
 
 def rosmaster_uri() -> str:
@@ -412,12 +484,48 @@ def description_bytes(session: zenoh.Session, key: str, timeout_s: float) -> byt
     raise LookupError(f"no reply on {key} within {timeout_s} s")
 
 
+class RosShutdown:
+    """Why rospy shut this node down, when something other than us did: `rosnode kill`, an XML-RPC
+    `shutdown` call to the node (anyone who reaches its port may send one), or the master when another
+    node registered the same name. rospy's side then stops for good while the process would run on."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None
+        self.ours = False
+
+    def note(self, reason: str) -> None:
+        """rospy's pre-shutdown hook: called once, with rospy's reason, on the thread that shut it down."""
+        if not self.ours:
+            self.reason = bounded(str(reason), 300)
+
+    def shut_down(self, why: str) -> None:
+        """Shut rospy down ourselves, waiting at most ROS_SHUTDOWN_S for it to unregister from the master."""
+        self.ours = True
+        closer = threading.Thread(target=rospy.signal_shutdown, args=(why,), name="ros-shutdown", daemon=True)
+        closer.start()
+        closer.join(ROS_SHUTDOWN_S)
+        if closer.is_alive():
+            logger.warning("the ROS master did not answer within %.1f s: leaving without unregistering",
+                           ROS_SHUTDOWN_S)
+
+
+def _leave_if_stuck(stop: threading.Event) -> None:
+    """Once `stop` is set, give the gateway STUCK_EXIT_S to return, then leave: a call to a frozen master
+    (rospy's init_node, set_param) has no timeout and would hold SIGTERM off until a SIGKILL."""
+    stop.wait()
+    time.sleep(STUCK_EXIT_S)
+    logger.warning("still inside a call to the ROS master %.0f s after the stop signal: leaving now", STUCK_EXIT_S)
+    logging.shutdown()
+    os._exit(0)
+
+
 def run(session: zenoh.Session, settings: Ros1Settings, stop: threading.Event) -> int:
-    """Learn the robot, join the ROS graph, map until `stop` is set.
+    """Learn the robot, join the ROS graph, map until `stop` is set or the ROS side is shut down.
 
     Returns:
-        The process exit code.
+        The process exit code: 1 when something on the ROS side shut the gateway's node down.
     """
+    threading.Thread(target=_leave_if_stuck, args=(stop,), name="stuck-exit", daemon=True).start()
     keys = Keys(settings.robot_id)
     try:
         names = names_of(settings)
@@ -427,7 +535,8 @@ def run(session: zenoh.Session, settings: Ros1Settings, stop: threading.Event) -
     if settings.mesh_urls == "http":
         try:
             mesh_server = MeshServer(settings.mesh_http_bind, settings.mesh_http_port,
-                                     lambda path: description_bytes(session, keys.mesh(path), settings.info_timeout_s))
+                                     lambda path: description_bytes(session, keys.mesh(path), settings.info_timeout_s),
+                                     hosts=(mesh_host(settings),))
         except OSError as exc:
             raise StartupError(f"cannot serve meshes on {settings.mesh_http_bind}:{settings.mesh_http_port}: "
                                f"{exc.strerror or exc}") from None
@@ -450,6 +559,8 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
         return 0
     node = settings.node_name or f"zensim_ros1_{settings.robot_id.replace('-', '_')}"
     logger.info("joining the ROS graph as /%s, master %s", node, rosmaster_uri())
+    ros_shutdown = RosShutdown()
+    rospy.core.add_preshutdown_hook(ros_shutdown.note)
     rospy.init_node(node, disable_signals=True)
     # init_node points the root logger at a file in ROS_HOME/log: ours go to stderr like every service's.
     logging.basicConfig(level=settings.log_level.upper(), format=FORMAT, force=True)
@@ -462,18 +573,26 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
         gateway.start(robot)
     except LookupError as exc:
         gateway.close()
-        rospy.signal_shutdown("no robot description")
+        ros_shutdown.shut_down("no robot description")
         raise StartupError(f"cannot read the robot's URDF: {exc}") from None
     watcher = threading.Thread(target=gateway.watch_master, args=(stop,), name="ros-master", daemon=True)
     watcher.start()
+    threading.Thread(target=gateway.forward_held, args=(stop,), name="held-commands", daemon=True).start()
     token = session.liveliness().declare_token(keys.alive("ros1"))
     logger.info("ros1 gateway up: %d joints; %s, %s, %s%s", len(robot.names), names.joint_states, names.gui,
                 names.command("{joint}"), f"; meshes at {gateway.mesh_url()}" if mesh_server else "")
     period_s = 1.0 / settings.status_rate_hz
     seq = 0
     last_count, last_time = 0, time.monotonic()
+    exit_code = 0
     try:
         while not stop.wait(period_s):
+            if ros_shutdown.reason is not None:
+                # Serving on would be a lie: no ROS output, commands ignored, and a live alive/ros1 token.
+                logger.error("the gateway's ROS node was shut down from outside (%s): exiting (restart it; "
+                             "`zensim up` stops with it)", ros_shutdown.reason)
+                exit_code = 1
+                break
             if gateway.sim_restarted.is_set():
                 robot = _learn_robot(session, keys, settings, stop)
                 if robot is None:
@@ -492,8 +611,9 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
     finally:
         token.undeclare()
         gateway.close()
-        rospy.signal_shutdown("zensim ros1 stopping")
+        ros_shutdown.shut_down("zensim ros1 stopping")
     c = gateway.counters
-    logger.info("%d ROS commands read, %d forwarded, %d rejected; %d joint states published",
-                c.commands_received, c.commands_forwarded, gateway.refusals.count, c.joint_states_published)
-    return 0
+    logger.info("%d ROS commands read, %d forwarded, %d shed, %d rejected; %d joint states published",
+                c.commands_received, c.commands_forwarded, c.commands_shed, gateway.refusals.count,
+                c.joint_states_published)
+    return exit_code

@@ -1,7 +1,8 @@
 """Settings of `zensim ros1` (defaults < `ZENSIM_*` environment < `--flags`).
 
 The ROS master itself is ROS's own business: rospy reads `ROS_MASTER_URI`, `ROS_IP` /
-`ROS_HOSTNAME` and `ROS_HOME` from the environment, as every ROS node does.
+`ROS_HOSTNAME` and `ROS_HOME` from the environment, as every ROS node does. With neither `ROS_IP`
+nor `ROS_HOSTNAME` set the gateway binds loopback (ROS's own default would be every interface).
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
-from zensim.common.settings import CommonSettings
+from zensim.common.settings import CommonSettings, zero_or_at_least
 
 
 class Ros1Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -53,6 +54,10 @@ class Ros1Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     state_rate_hz: Annotated[float, msgspec.Meta(gt=0, le=1000)] = 100.0
     """Most joint states, odometry, IMU, TF and clock messages per second of sim time, Hz
     (the sim's state_rate_hz when lower)."""
+    command_rate_hz: Annotated[float, msgspec.Meta(ge=0, le=10000)] = 100.0
+    """Most commands passed on per second per ROS command topic (each joint's Float64 topic, the GUI's);
+    faster ones are shed, the newest kept and passed on in its turn; 0: no limit. The bridge sends
+    motor commands at 100 Hz: more targets per joint than that change nothing but the CPU load."""
     status_rate_hz: Annotated[float, msgspec.Meta(gt=0, le=100)] = 2.0
     """Rate of the gateway's status on state/ros1, Hz."""
     mesh_urls: Literal["http", "keep"] = "http"
@@ -69,6 +74,12 @@ class Ros1Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     """ROS node name; empty: `zensim_ros1_{robot_id}`."""
     info_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 1.0
     """How long each query of the sim's info/robot, info/urdf and info/mesh waits, s."""
+    open_edge: bool = False
+    """With --secure-dir, let the gateway's ROS side listen beyond loopback anyway (ROS_IP / ROS_HOSTNAME
+    another address): ROS 1 has no authentication, so anyone who reaches it drives the robot."""
     ros_python_path: str = "/usr/lib/python3/dist-packages"
     """Where rospy is found when the Python running zensim cannot import it (Debian's ROS packages
     install there); searched after everything else, so the project's own packages win."""
+
+    def __post_init__(self) -> None:
+        zero_or_at_least(self.command_rate_hz, 1.0, "command_rate_hz")

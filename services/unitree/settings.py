@@ -17,6 +17,9 @@ class UnitreeSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_
     """DDS domain id, as the SDK's ChannelFactoryInitialize(domain, ...): the robot uses 0, unitree_mujoco 1."""
     interface: str = "lo"
     """Network interface DDS runs on (lo, eth0, ...); empty lets Cyclone DDS choose."""
+    open_edge: bool = False
+    """With --secure-dir, let DDS run on an interface other than `lo` anyway: DDS has no authentication
+    here, so anyone who reaches it drives the robot (docs/security.md)."""
     mode_machine: Annotated[int, msgspec.Meta(ge=0, le=255)] = 0
     """Robot type code reported in LowState_.mode_machine (controllers echo it back; zensim ignores it)."""
     status_rate_hz: Annotated[float, msgspec.Meta(ge=0.1, le=100)] = 2.0
