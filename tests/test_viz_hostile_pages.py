@@ -206,3 +206,58 @@ def test_a_nul_in_a_static_path_is_a_404_without_a_traceback(start_service) -> N
     except urllib.error.HTTPError as exc:
         assert exc.code == 404, exc.code
     assert "Traceback" not in viz.log(), viz.log()[-2000:]
+
+
+def rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as status:
+        lines = status.read().splitlines()
+    for line in lines:
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError(f"no VmRSS for {pid}")
+
+
+def silent_page(port: int) -> socket.socket:
+    """A websocket that completes the handshake and then never reads (nor sends) a byte."""
+    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+    key = base64.b64encode(os.urandom(16)).decode()
+    sock.sendall((f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                  f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode())
+    response = b""
+    while b"\r\n\r\n" not in response:
+        response += sock.recv(1)
+    assert b" 101 " in response.split(b"\r\n")[0], response
+    return sock
+
+
+def test_pages_that_never_read_cost_the_viz_no_copy_of_the_scene(start_service) -> None:
+    """Issue 27 item 5: each page that never reads held its own copy of the ~5.7 MB scene in the viz (1000
+    such pages: 197 -> 3 517 MB, kept after they closed). Now every page is handed the same framed bytes,
+    a few messages at a time: 50 such pages cost the viz a few MB, and a reading page still draws."""
+    viz, port = start_stack(start_service)
+    good = GoodPage(port)  # the scene is built and a page gets it
+    try:
+        wait_for(lambda: len(good.frames) > 5, 60, "the good page's first frames")
+    finally:
+        good.stop()
+    time.sleep(1.0)
+    before = rss_mb(viz.proc.pid)
+    pages = [silent_page(port) for _ in range(50)]
+    try:
+        wait_for(lambda: viz.log().count("browser connected") >= 51, 30, "the pages connected")
+        time.sleep(3.0)  # what the viz hands them is in their sockets' buffers by now
+        with_pages = rss_mb(viz.proc.pid)
+    finally:
+        for page in pages:
+            page.close()
+    wait_for(lambda: viz.log().count("browser left") >= 51, 30, "the pages gone")
+    after = rss_mb(viz.proc.pid)
+    good = GoodPage(port)
+    try:
+        wait_for(lambda: len(good.frames) > 5, 60, "a new page's frames after them")
+    finally:
+        good.stop()
+    print(f"\nviz RSS {before:.0f} MB, {with_pages:.0f} MB with 50 pages that never read, {after:.0f} MB after")
+    assert with_pages - before < 25, (before, with_pages)  # under 0.5 MB a page (a scene copy each: ~1.8 MB)
+    assert after - before < 25, (before, after)
+    assert viz.alive(), viz.log()[-2000:]
