@@ -175,10 +175,11 @@ class Client:
         if self.dropped:
             return None
         connection = self.handler.ws_connection
-        if connection is None or connection.is_closing():
+        stream = None if connection is None or connection.is_closing() else connection.stream
+        if stream is None:
             return None
         try:
-            future = connection.stream.write(frame)
+            future = stream.write(frame)
         except tornado.iostream.StreamClosedError:
             return None
         self.unwritten.append(future)
