@@ -60,6 +60,8 @@ refusals = RateLimitedLog(logger)
 access_log = logging.getLogger("zensim.viz.access")
 refused_requests = RateLimitedLog(access_log)
 drops = RateLimitedLog(logger)
+connections = RateLimitedLog(logger)
+"""A page coming or going is a line, but at most one a second: a script opening thousands is not thousands."""
 
 KIND_COMMAND = 1
 KIND_FRAME = 2
@@ -342,12 +344,12 @@ class Hub:
     def opened(self, client: Client) -> None:
         client.on_drop = self._dropped
         self.clients.add(client)
-        logger.info("browser connected (%d now)", len(self.clients))
+        connections.info("browser connected (%d now)", len(self.clients))
         self._send_scene(client)
 
     def closed(self, client: Client) -> None:
         self.clients.discard(client)
-        logger.info("browser left (%d now)", len(self.clients))
+        connections.info("browser left (%d now)", len(self.clients))
 
 
 class Guarded(tornado.web.RequestHandler):
