@@ -16,6 +16,9 @@ from .topics import TOPICS, Topic
 ROOT: Final = "zensim"
 DEFAULT_ROBOT_ID: Final = "g1"
 ROBOT_ID_PATTERN: Final = re.compile(r"[a-z0-9_-]+")
+MAX_ROBOT_ID_CHARS: Final = 64
+"""Longest robot id: it is a chunk of every key, written into every sample's key and every ACL rule (a
+100 000-character id made zenoh itself panic, with a traceback, instead of a clear error)."""
 SERVICES: Final = ("router", "sim", "bridge", "viz", "unitree", "ros1", "ros2", "loco")
 """Every service that declares `alive/{service}`, each a `zensim {service}` command with a role of its own;
 `zensim up` and compose.yaml start those not optional, in this order. The one list of services: the rest
@@ -30,7 +33,9 @@ CTL_VERBS: Final = tuple(t.key.split("/", 1)[1] for t in TOPICS if t.key.startsw
 
 
 def check_robot_id(robot: str) -> str:
-    """Return `robot` if it is a valid `{robot}` chunk, else raise ValueError."""
+    """Return `robot` if it is a valid `{robot}` chunk, else raise ValueError (its text bounded)."""
+    if len(robot) > MAX_ROBOT_ID_CHARS:
+        raise ValueError(f"robot id {robot[:20]!r}... has {len(robot)} characters: at most {MAX_ROBOT_ID_CHARS}")
     if not ROBOT_ID_PATTERN.fullmatch(robot):
         raise ValueError(f"robot id {robot!r} must match [a-z0-9_-]+")
     return robot

@@ -496,8 +496,9 @@ class WorldAdvanceReply(Message, frozen=True, tag="world_advance_reply", kw_only
 
 MAX_WORLD_ROBOTS = 256
 """Most robots a world holds (a world file's limit), and so the most world/info lists."""
-RobotId = Annotated[str, msgspec.Meta(pattern=r"^[a-z0-9_-]+$")]
-"""A robot or world id as it appears in a key (`zensim/{id}/...`)."""
+RobotId = Annotated[str, msgspec.Meta(pattern=r"^[a-z0-9_-]+$", max_length=64)]
+"""A robot or world id as it appears in a key (`zensim/{id}/...`): keys.check_robot_id's rule (at most
+MAX_ROBOT_ID_CHARS there)."""
 
 
 class WorldRobot(Message, frozen=True, tag="world_robot", kw_only=True):

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import pytest
 
 from zensim.bridge.settings import BridgeSettings
@@ -144,3 +148,14 @@ def test_rates_and_timeouts_below_a_sane_floor_are_refused(cls: type, argv: list
 ])
 def test_zero_still_means_off_or_unbounded(cls: type, argv: list[str]) -> None:
     load_settings(cls, argv, env={})
+
+
+@pytest.mark.parametrize("command", ["sim", "record"])
+def test_an_absurdly_long_robot_id_is_one_clear_line_at_startup(command: str, router_endpoint: str) -> None:
+    """Issue 27 item 7: a 100 000-character robot id made zenoh panic (a Rust panic and a Python traceback)."""
+    env = dict(os.environ, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=router_endpoint)
+    result = subprocess.run([sys.executable, "-m", "zensim", command, "--robot-id", "a" * 100_000],
+                            capture_output=True, text=True, timeout=60, env=env)
+    lines = (result.stdout + result.stderr).strip().splitlines()
+    assert result.returncode == 2, (result.returncode, [line[:200] for line in lines[-5:]])
+    assert len(lines) == 1 and len(lines[0]) < 200 and "at most 64" in lines[0], [line[:200] for line in lines[-5:]]

@@ -349,9 +349,20 @@ def test_sdk_loco_client_example_through_its_stdin(stack):
     reader = threading.Thread(target=lambda: output.extend(proc.stdout), daemon=True)
     reader.start()
 
+    def prompts() -> int:
+        return "".join(output).count("Enter id or name")
+
     def choose(line: str, seconds: float) -> Odometry:
+        """Give the example `line`, wait until it has made its calls (its next prompt: after its requests
+        were answered and its 1 s pause), then `seconds` of sim time for the robot to act them out.
+
+        Waiting on the prompt, not on sim time alone: on a loaded machine the example can take many
+        seconds to start (imports, DDS) or to get to a line, while the sim's clock runs on (once it had not
+        read "1" before its 4 s window ended, and the test saw no stand-up)."""
+        asked = prompts()
         proc.stdin.write(line + "\n")
         proc.stdin.flush()
+        wait_for(lambda: prompts() > asked or proc.poll() is not None, 120, f"the example to act on {line!r}")
         trace = []
         end = stack.sim_time() + seconds
         while stack.sim_time() < end:
@@ -360,20 +371,30 @@ def test_sdk_loco_client_example_through_its_stdin(stack):
         print(f"\n{line!r}: " + " ".join(f"({m.sim_time_s:.2f} {m.pos[0]:+.2f} {m.pos[1]:+.2f} {m.pos[2]:.2f})" for m in trace))
         return stack.odom.value
 
+    def pace() -> str:
+        """How the realtime sim kept time over the test (a balancing policy whose commands land late
+        stumbles: say so when the robot falls, so a starved machine is told from a broken controller)."""
+        window = stack.status.history[first_status:]
+        if not window:
+            return "no sim status"
+        return (f"sim rtf min {min(x.rtf for x in window):.2f}, step jitter p99 max "
+                f"{max(x.step_jitter_p99_s for x in window) * 1e3:.0f} ms, load average {os.getloadavg()[0]:.1f}")
+
     try:
         first_status = len(stack.status.history)
         choose("", 1.0)  # "Press Enter to continue..."
         stood = choose("1", 4.0)  # Damp, 0.5 s, Squat2StandUp
-        assert stood.pos[2] > 0.7, stood
+        assert stood.pos[2] > 0.7, (stood.pos, pace())
         stack.unitree.wait(lambda u: u.loco_fsm_id == 706, 10, "the status to say squat-to-stand")
         moved = choose("3", 2.5)  # Move(0.3, 0, 0) for 1 s
-        assert moved.pos[0] - stood.pos[0] > 0.1, (stood.pos, moved.pos)
+        assert moved.pos[0] - stood.pos[0] > 0.1, (stood.pos, moved.pos, pace())
         turned = choose("5", 2.5)  # Move(0, 0, 0.3) for 1 s
-        assert abs(yaw_of(turned.quat_wxyz) - yaw_of(moved.quat_wxyz)) > 0.1
-        assert not stack.fell_since(first_status)
+        assert abs(yaw_of(turned.quat_wxyz) - yaw_of(moved.quat_wxyz)) > 0.1, pace()
+        assert not stack.fell_since(first_status), pace()
         damped = choose("0", 2.5)  # Damp
-        assert damped.pos[2] < turned.pos[2] - 0.05, (turned.pos, damped.pos)
+        assert damped.pos[2] < turned.pos[2] - 0.05, (turned.pos, damped.pos, pace())
         stack.unitree.wait(lambda u: u.loco_fsm_id == 1, 10, "the status to say damp")
+        print(f"\nthe example's run: {pace()}")
     finally:
         proc.stdin.close()
         proc.wait(15)

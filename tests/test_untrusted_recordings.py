@@ -200,3 +200,28 @@ class TestOneSourcePerRobotId:
         replay = start_service("replay", str(path))
         assert replay.proc.wait(20) == 2, replay.log()
         assert "already served by a live sim" in replay.log(), replay.log()
+
+
+def test_junk_keys_put_before_a_controller_starts_never_crowd_its_channels_out(start_service, zsession, robot_id,
+                                                                              tmp_path) -> None:
+    """Issue 27 item 6: 1100 junk keys put before a controller started used up the recorder's 1000 channels,
+    and 0 of its 300 `cmd/motors` were recorded (resim then found 0 commands). The protocol's keys now
+    always get their channel; invented keys share a budget of their own."""
+    keys, path = Keys(robot_id), tmp_path / "junk.mcap"
+    recorder = start_service("record", "-o", str(path))
+    wait_for(lambda: "recording zensim/" in recorder.log(), 30, "the recorder to start")
+    time.sleep(0.5)
+    for i in range(1100):
+        zsession.put(f"{keys.root}/junk/k{i}", json.dumps({"junk": i}))
+    time.sleep(1.0)  # the junk is in before the controller starts
+    codec = Codec(MotorCommand)
+    for i in range(300):
+        zsession.put(keys.motors, codec.encode(MotorCommand(names=("left_elbow_joint",), q=(0.001 * i,)), "msgpack"))
+        time.sleep(0.001)
+    time.sleep(1.0)
+    stop_recorder(recorder)
+    topics = [topic for topic, _ in recorded(path)]
+    motors = topics.count(keys.motors)
+    junk_channels = len({topic for topic in topics if "/junk/" in topic})
+    assert motors == 300, (motors, len(topics), recorder.log()[-2000:])
+    assert junk_channels <= 200, junk_channels  # still bounded

@@ -13,6 +13,7 @@ import json
 import os
 import socket
 import struct
+import subprocess
 import threading
 import time
 import urllib.error
@@ -206,3 +207,75 @@ def test_a_nul_in_a_static_path_is_a_404_without_a_traceback(start_service) -> N
     except urllib.error.HTTPError as exc:
         assert exc.code == 404, exc.code
     assert "Traceback" not in viz.log(), viz.log()[-2000:]
+
+
+def rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as status:
+        lines = status.read().splitlines()
+    for line in lines:
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError(f"no VmRSS for {pid}")
+
+
+def steady_rss_mb(pid: int, window_s: float = 1.0) -> bool:
+    """Whether a process's RSS changed by less than 1 MB over `window_s`."""
+    first = rss_mb(pid)
+    time.sleep(window_s)
+    return abs(rss_mb(pid) - first) < 1.0
+
+
+def connections_to(port: int) -> int:
+    """Established TCP connections whose local port is `port` (the viz's side of its pages)."""
+    out = subprocess.run(["ss", "-Htn", "state", "established", f"( sport = :{port} )"], capture_output=True,
+                         text=True, check=True).stdout
+    return len(out.splitlines())
+
+
+def silent_page(port: int) -> socket.socket:
+    """A websocket that completes the handshake and then never reads (nor sends) a byte."""
+    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+    key = base64.b64encode(os.urandom(16)).decode()
+    sock.sendall((f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                  f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode())
+    response = b""
+    while b"\r\n\r\n" not in response:
+        response += sock.recv(1)
+    assert b" 101 " in response.split(b"\r\n")[0], response
+    return sock
+
+
+def test_pages_that_never_read_cost_the_viz_no_copy_of_the_scene(start_service) -> None:
+    """Issue 27 item 5: each page that never reads held its own copy of the ~5.7 MB scene in the viz (1000
+    such pages: 197 -> 3 517 MB, kept after they closed). Now every page is handed the same framed bytes,
+    a few messages at a time: 50 such pages cost the viz a few MB, and a reading page still draws."""
+    viz, port = start_stack(start_service)
+    good = GoodPage(port)  # the scene is built and a page gets it
+    try:
+        wait_for(lambda: len(good.frames) > 5, 60, "the good page's first frames")
+    finally:
+        good.stop()
+    time.sleep(1.0)
+    before = rss_mb(viz.proc.pid)
+    pages = [silent_page(port) for _ in range(50)]
+    try:
+        # Each is handed scene messages until its socket's buffers are full: wait until the viz's memory
+        # stops changing (it grew ~1.8 MB a page before).
+        wait_for(lambda: steady_rss_mb(viz.proc.pid), 60, "the viz's memory steady with the pages open")
+        with_pages = rss_mb(viz.proc.pid)
+        log_lines = viz.log().count("\n")
+    finally:
+        for page in pages:
+            page.close()
+    wait_for(lambda: connections_to(port) == 0, 30, "the pages gone")
+    after = rss_mb(viz.proc.pid)
+    good = GoodPage(port)
+    try:
+        wait_for(lambda: len(good.frames) > 5, 60, "a new page's frames after them")
+    finally:
+        good.stop()
+    print(f"\nviz RSS {before:.0f} MB, {with_pages:.0f} MB with 50 pages that never read, {after:.0f} MB after")
+    assert with_pages - before < 25, (before, with_pages)  # under 0.5 MB a page (a scene copy each: ~1.8 MB)
+    assert after - before < 25, (before, after)
+    assert viz.log().count("\n") - log_lines < 15, viz.log()[-2000:]  # connections: a line a second at most
+    assert viz.alive(), viz.log()[-2000:]

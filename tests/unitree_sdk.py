@@ -106,7 +106,6 @@ class SdkClient:
     """
 
     def __init__(self, domain_id: int, interface: str = "lo") -> None:
-        OPEN_CLIENTS.append(self)
         self.domain = Domain(domain_id, domain_config(interface))
         self.participant = DomainParticipant(domain_id)
         self.lowcmd = DataWriter(self.participant, Topic(self.participant, "rt/lowcmd", LowCmd_))
@@ -117,6 +116,7 @@ class SdkClient:
         self.requests = DataWriter(self.participant, Topic(self.participant, "rt/api/motion_switcher/request", Request_))
         self.responses = DataReader(self.participant, Topic(self.participant, "rt/api/motion_switcher/response", Response_))
         self._lock = threading.Lock()
+        OPEN_CLIENTS.append(self)  # only a client made whole: close() needs every part
 
     def close(self) -> None:
         """Delete the participant (with its readers and writers) and the domain: their sockets close now."""

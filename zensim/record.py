@@ -10,7 +10,10 @@ Ctrl-C or SIGTERM (or `--duration-s`, or `--max-bytes` of JSON written) ends the
 complete, indexed file. A sample that does not decode as its key's message, or that holds a number
 JSON cannot spell (NaN, Infinity: strict readers such as Foxglove refuse the file), is not written:
 it is counted and logged (rate-limited). Keys are client-chosen, so channels are bounded in count
-and key length: a flood of invented keys cannot grow the file's index without bound.
+and key length: a flood of invented keys cannot grow the file's index without bound. The protocol's
+own keys (those of the topic table, and `cmd/joint/{joint}` for the robot's joints) always get their
+channel: invented keys share a budget of their own (MAX_OTHER_CHANNELS), so junk put before a
+controller starts can never crowd its channels out of the recording.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from typing import IO, Annotated, ClassVar
+from typing import IO, Annotated, ClassVar, Final
 
 import msgspec
 import zenoh
@@ -31,7 +34,8 @@ from zensim.common.entry import fail, serve
 from zensim.common.logs import RateLimitedLog, setup_logging
 from zensim.common.settings import CommonSettings, settings_or_exit
 from zensim.common.wire import error_text, payload_of, read_payload
-from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, SimStatus, decode_scalar
+from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, SimStatus, decode_scalar, topics
+from zensim.schemas.topics import TOPICS
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, STATE_CAP_BYTES
 
 from .mcapfile import (MESH_ATTACHMENT_PREFIX, ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter, message_type_of, non_finite_at,
@@ -42,8 +46,14 @@ logger = logging.getLogger("zensim.record")
 PROG = "zensim record"
 MAX_SAMPLE_BYTES = STATE_CAP_BYTES
 """Larger samples are not recorded (counted): no zensim publication comes near this."""
-MAX_CHANNELS = 1000
-"""Distinct keys recorded; samples on keys past this are not recorded (counted). zensim has ~20 per robot."""
+MAX_OTHER_CHANNELS = 200
+"""Distinct keys outside the protocol recorded (invented keys, and `cmd/joint/{joint}` for a joint the robot
+lacks or before its description came); samples on more are not recorded (counted). The protocol's own keys
+(~20, and one per joint) are never counted against it."""
+PROTOCOL_KEYS: Final = frozenset(t.key for t in TOPICS if t.kind == "publication" and "{" not in t.key)
+"""The protocol's publications with a fixed key (under `zensim/{robot}/`): each always gets its channel."""
+JOINT_KEY_PREFIX: Final = topics.JOINT_TARGET.key.split("{", 1)[0]
+"""`cmd/joint/`: the one publication with a placeholder; its keys are the protocol's for the robot's joints."""
 MAX_MESH_BYTES = 256 * 1024 * 1024
 """All the meshes of one description saved with it, together (the G1's shells: 2.8 MB; Unitree's full: 19 MB)."""
 MAX_KEY_CHARS = 256
@@ -89,6 +99,10 @@ class Recorder:
         self._description_wanted = threading.Event()
         self._description_wanted.set()
         self._described: tuple[str, str] | None = None
+        self._joint_names: frozenset[str] = frozenset()
+        """The described robot's joints (replaced whole by the helper thread)."""
+        self.other_channels = 0
+        """Channels of keys outside the protocol (the writing thread only)."""
         self._subscriber = session.declare_subscriber(self.keys.everything, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -122,6 +136,7 @@ class Recorder:
                 continue
             self._description_wanted.clear()
             self._described = (described.run_id, described.mode)
+            self._joint_names = frozenset(described.joint_names)
             self.attachments.put((ROBOT_INFO_ATTACHMENT, "application/json", info))
             self.attachments.put((URDF_ATTACHMENT, "application/xml", urdf))
             for path, data in meshes:
@@ -180,11 +195,13 @@ class Recorder:
         try:
             if len(data) > MAX_SAMPLE_BYTES:
                 raise DecodeError(f"{len(data)} bytes, more than {MAX_SAMPLE_BYTES}")
+            new_other = False
             if not self.writer.has_channel(key):
                 if len(key) > MAX_KEY_CHARS:
                     raise DecodeError(f"a key of {len(key)} characters, more than {MAX_KEY_CHARS}")
-                if self.writer.channel_count() >= MAX_CHANNELS:
-                    raise DecodeError(f"already {MAX_CHANNELS} keys recorded")
+                new_other = not self._is_protocol_key(split_key(key)[1])
+                if new_other and self.other_channels >= MAX_OTHER_CHANNELS:
+                    raise DecodeError(f"already {MAX_OTHER_CHANNELS} keys outside the protocol recorded")
             _, relative = split_key(key)
             message_type = message_type_of(relative)
             publish_ns = received_ns
@@ -209,8 +226,15 @@ class Recorder:
             self.bad_input.warning("not recorded: a sample on %s: %s", key, str(exc)[:200])
             return
         self.writer.write(key, message_type, json_data, received_ns, publish_ns)
+        self.other_channels += new_other
         self.written += 1
         self.bytes_written += len(json_data)
+
+    def _is_protocol_key(self, relative: str) -> bool:
+        """A key of the protocol's table, or `cmd/joint/{joint}` for one of the described robot's joints."""
+        if relative in PROTOCOL_KEYS:
+            return True
+        return relative.startswith(JOINT_KEY_PREFIX) and relative[len(JOINT_KEY_PREFIX):] in self._joint_names
 
     def close(self) -> None:
         self._subscriber.undeclare()

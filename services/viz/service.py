@@ -267,6 +267,7 @@ class VizService:
         if self.stop.is_set():
             self.loop.stop()
             return
+        self.hub.sweep()  # pages stalled on their scene
         shown = self.shown
         if not shown or not self.hub.any_ready():
             return

@@ -22,6 +22,14 @@ writes not yet taken by its socket; past that it is a page that does not read
 (slow or hostile) and it is dropped (closed, counted), so it never holds memory
 or the loop for the others. A page's own messages are rate-limited (a token
 bucket), and every write's failure is collected, never left unretrieved.
+
+The scene (the robot's meshes: ~5.7 MB for the G1's shells, in ~150 messages) is
+framed once per robot, and every page's socket is handed those same bytes (tornado's
+`write_message` would copy each message into a new frame per page), at most
+`SCENE_WINDOW` messages ahead of what the page's socket has taken. So a page that
+never reads costs a few references, not a copy of the scene (1000 such pages took
+the viz from 197 to 3 517 MB, kept after they left); a page that takes no scene
+message for `SCENE_STALL_S` is dropped, which frees its socket's kernel buffers too.
 """
 
 from __future__ import annotations
@@ -39,6 +47,7 @@ from pathlib import Path
 from typing import Any
 
 import meshcat
+import tornado.iostream
 import tornado.web
 import tornado.websocket
 
@@ -51,6 +60,8 @@ refusals = RateLimitedLog(logger)
 access_log = logging.getLogger("zensim.viz.access")
 refused_requests = RateLimitedLog(access_log)
 drops = RateLimitedLog(logger)
+connections = RateLimitedLog(logger)
+"""A page coming or going is a line, but at most one a second: a script opening thousands is not thousands."""
 
 KIND_COMMAND = 1
 KIND_FRAME = 2
@@ -62,6 +73,11 @@ PAGE_MESSAGES_PER_S = 200.0
 PAGE_MESSAGE_BURST = 400.0
 MAX_OVER_RATE = 2000
 """Messages past the rate a page may send before it is dropped as hostile (ten seconds' worth)."""
+SCENE_WINDOW = 4
+"""Scene messages handed to a page's socket and not yet taken by it (the rest wait in the hub, shared)."""
+SCENE_STALL_S = 30.0
+"""A page that takes no scene message for this long is dropped (a browser on a slow link still takes one
+of the largest, 0.5 MB, in well under that)."""
 DROPPED_CLOSE_CODE = 1008
 """Websocket close code "policy violation": the page did not read what it was sent."""
 STATIC_DIR = Path(str(resources.files("zensim.viz") / "static" / "index.html")).resolve().parent
@@ -74,6 +90,18 @@ PLOTLY_JS = Path(importlib.util.find_spec("plotly").origin).parent / "package_da
 
 def header(kind: int, generation: int) -> bytes:
     return struct.pack("<II", kind, generation)
+
+
+def binary_frame(payload: bytes) -> bytes:
+    """`payload` as one websocket binary message, server to client (FIN, opcode 2, unmasked; RFC 6455 5.2)."""
+    n = len(payload)
+    if n < 126:
+        length = struct.pack("!B", n)
+    elif n <= 0xFFFF:
+        length = struct.pack("!BH", 126, n)
+    else:
+        length = struct.pack("!BQ", 127, n)
+    return b"\x82" + length + payload
 
 
 class TokenBucket:
@@ -122,6 +150,11 @@ class Client:
         """One control request per page at a time: a page cannot queue resets faster than the sim answers."""
         self.robot: str | None = None
         """The robot this page's panel acts on (a world's viewer); None: the first robot shown."""
+        self.scene_next: int | None = None
+        """Index of the next scene message to hand this page; None once it has the whole scene."""
+        self.scene_generation = -1
+        self.scene_progress_at = time.monotonic()
+        """When this page's socket last took a scene message (or the scene started)."""
 
     def send(self, data: bytes | str, binary: bool) -> Any:
         """Write to the page; None when it is gone or was dropped for not reading."""
@@ -139,6 +172,29 @@ class Client:
         self.unwritten.append(future)
         future.add_done_callback(_collect)
         return future
+
+    def send_framed(self, frame: bytes) -> Any:
+        """Hand the socket a message framed beforehand (binary_frame), without copying it: every page is
+        handed the same bytes. None when the page is gone or was dropped."""
+        if self.dropped:
+            return None
+        connection = self.handler.ws_connection
+        stream = None if connection is None or connection.is_closing() else connection.stream
+        if stream is None:
+            return None
+        try:
+            future = stream.write(frame)
+        except tornado.iostream.StreamClosedError:
+            return None
+        self.unwritten.append(future)
+        future.add_done_callback(_collect)
+        return future
+
+    def scene_in_flight(self) -> int:
+        """Writes handed to the socket and not yet taken by it."""
+        while self.unwritten and self.unwritten[0].done():  # writes complete in order
+            self.unwritten.popleft()
+        return len(self.unwritten)
 
     def drop(self, why: str) -> None:
         """Close a page that does not read what it is sent, or floods (counted by the hub)."""
@@ -174,6 +230,8 @@ class Hub:
         """Browser messages refused (not JSON, malformed, unknown joints, ...) since start."""
         self.generation = 0
         self.scene: list[bytes] = []
+        """The scene's messages, each framed once (binary_frame) and handed to every page as is."""
+        self._last_sweep = time.monotonic()
         self.robot_meta: dict | None = None
         self.frame: bytes | None = None
         self.frame_seq = 0
@@ -185,19 +243,53 @@ class Hub:
     def set_scene(self, commands: list[bytes], robot_meta: dict) -> None:
         """Install a new robot drawing and send it to every browser."""
         self.generation += 1
-        self.scene = [header(KIND_COMMAND, self.generation) + c for c in commands]
+        self.scene = [binary_frame(header(KIND_COMMAND, self.generation) + c) for c in commands]
         self.robot_meta = dict(robot_meta, type="robot", generation=self.generation)
         self.frame = None
         for client in list(self.clients):
             self._send_scene(client)
 
     def _send_scene(self, client: Client) -> None:
-        for message in self.scene:
-            client.send(message, binary=True)
-        if self.robot_meta is not None:
-            client.send(json.dumps(self.robot_meta), binary=False)
-        client.ready = True
+        """Start handing `client` the current scene (it gets frames once it has all of it)."""
+        client.ready = False
         client.sent_seq = -1
+        client.scene_next = 0
+        client.scene_generation = self.generation
+        client.scene_progress_at = time.monotonic()
+        self._pump_scene(client)
+
+    def _pump_scene(self, client: Client) -> None:
+        """Hand `client` scene messages while fewer than SCENE_WINDOW wait in its socket; once all are
+        handed over, the robot message that completes the scene, and frames from then on."""
+        if client.dropped or client.scene_next is None or client not in self.clients:
+            return
+        if client.scene_generation != self.generation:  # a newer scene started meanwhile: _send_scene has it
+            return
+        while client.scene_next < len(self.scene) and client.scene_in_flight() < SCENE_WINDOW:
+            future = client.send_framed(self.scene[client.scene_next])
+            if future is None:
+                return
+            client.scene_next += 1
+            future.add_done_callback(lambda _f, c=client: self._scene_taken(c))
+        if client.scene_next >= len(self.scene):
+            client.scene_next = None
+            if self.robot_meta is not None:
+                client.send(json.dumps(self.robot_meta), binary=False)
+            client.ready = True
+
+    def _scene_taken(self, client: Client) -> None:
+        client.scene_progress_at = time.monotonic()
+        self._pump_scene(client)
+
+    def sweep(self) -> None:
+        """Drop pages that took no scene message for SCENE_STALL_S (checked at most once a second)."""
+        now = time.monotonic()
+        if now - self._last_sweep < 1.0:
+            return
+        self._last_sweep = now
+        for client in list(self.clients):
+            if client.scene_next is not None and now - client.scene_progress_at > SCENE_STALL_S:
+                client.drop(f"took no scene message for {SCENE_STALL_S:g} s")
 
     # --- frames --------------------------------------------------------------
     def any_ready(self) -> bool:
@@ -254,12 +346,12 @@ class Hub:
     def opened(self, client: Client) -> None:
         client.on_drop = self._dropped
         self.clients.add(client)
-        logger.info("browser connected (%d now)", len(self.clients))
+        connections.info("browser connected (%d now)", len(self.clients))
         self._send_scene(client)
 
     def closed(self, client: Client) -> None:
         self.clients.discard(client)
-        logger.info("browser left (%d now)", len(self.clients))
+        connections.info("browser left (%d now)", len(self.clients))
 
 
 class Guarded(tornado.web.RequestHandler):
