@@ -64,6 +64,47 @@ def load_world(settings: SimSettings) -> tuple[World, WorldFile | None]:
     return world, None
 
 
+class SimService:
+    """A World served on zenoh: its engine, each robot's endpoint, the world's verbs (a world file), the
+    command thread. `run` until the stop event, then `close`."""
+
+    def __init__(self, session: zenoh.Session, settings: SimSettings, stop: threading.Event, world: World,
+                 world_file: WorldFile | None = None) -> None:
+        self.world = world
+        self.engine = engine = Engine(world, settings, stop)
+        # A robot alone under lockstep advances on each command; a world's lockstep advances by world/advance.
+        advances = settings.clock == "lockstep" and world_file is None
+        refusal_logs = (RateLimitedLog(logger), RateLimitedLog(logger))  # a flood to every robot: one line a second
+        self.robots = robots = [
+            RobotEndpoint(session, engine, index, robot_id, advances, refusal_logs if world_file else None)
+            for index, robot_id in enumerate(world.sims)]
+        self.world_endpoint = WorldEndpoint(session, engine, world_file.robots) if world_file else None
+        engine.serve(robots, [self.world_endpoint] if self.world_endpoint else [])
+        self.intake = CommandIntake([robot.commands.handler for robot in robots],
+                                    take=lambda index, sample: robots[index].take_command(sample),
+                                    shed=lambda index: robots[index].count_shed(), every_sample=advances)
+        for robot in robots:  # alive/sim last: a client that saw it finds everything served, the world's verbs too
+            robot.announce()
+        if self.world_endpoint:
+            self.world_endpoint.announce()
+            logger.info("world up on %s/world: %s", self.world_endpoint.keys.root,
+                        ", ".join(f"zensim/{r}" for r in world.sims))
+        else:
+            logger.info("sim up on %s", robots[0].keys.root)
+
+    def run(self) -> None:
+        self.engine.run()
+
+    def close(self) -> None:
+        self.intake.close()
+        if self.world_endpoint:
+            self.world_endpoint.close()
+        for robot in self.robots:
+            robot.close()
+        self.intake.join()
+        self.engine.close()
+
+
 def run(session: zenoh.Session, settings: SimSettings, stop: threading.Event, world: World,
         world_file: WorldFile | None = None) -> int:
     """Serve `world` on the session until `stop` is set. Returns the exit code."""
@@ -71,33 +112,10 @@ def run(session: zenoh.Session, settings: SimSettings, stop: threading.Event, wo
         owner = current_owner(session, Keys(robot_id))
         if owner is not None:
             raise StartupError(taken_message(robot_id, owner))
-    engine = Engine(world, settings, stop)
-    # A robot alone under lockstep advances on each command; a world's lockstep advances by world/advance.
-    advances = settings.clock == "lockstep" and world_file is None
-    refusal_logs = (RateLimitedLog(logger), RateLimitedLog(logger))  # a flood to every robot: one line a second
-    robots = [RobotEndpoint(session, engine, index, robot_id, advances, refusal_logs if world_file else None)
-              for index, robot_id in enumerate(world.sims)]
-    world_endpoint = WorldEndpoint(session, engine, world_file.robots) if world_file else None
-    engine.serve(robots, [world_endpoint] if world_endpoint else [])
-    intake = CommandIntake([robot.commands.handler for robot in robots],
-                           take=lambda index, sample: robots[index].take_command(sample),
-                           shed=lambda index: robots[index].count_shed(), every_sample=advances)
-    for robot in robots:  # alive/sim last: a client that saw it finds everything served, the world's verbs too
-        robot.announce()
-    if world_endpoint:
-        world_endpoint.announce()
-        logger.info("world up on %s/world: %s", world_endpoint.keys.root, ", ".join(f"zensim/{r}" for r in world.sims))
-    else:
-        logger.info("sim up on %s", robots[0].keys.root)
+    service = SimService(session, settings, stop, world, world_file)
     try:
-        engine.run()
+        service.run()
     finally:
-        intake.close()
-        if world_endpoint:
-            world_endpoint.close()
-        for robot in robots:
-            robot.close()
-        intake.join()
-        engine.close()
+        service.close()
     logger.info("%s stopped after %.1f sim s", "world" if world_file else "sim", world.sim_time_s)
     return 0
