@@ -7,6 +7,7 @@
 - A world of 8 robots compiles MuJoCo once (each robot compiled its other mode again, only to describe it);
   ctl/reset with a mode and `zensim robot build` compile once (they compiled twice).
 - A world of several robots refuses a mode switch and says why; a world of one rebuilds.
+- Issue 27: resets are logged at a bounded rate; a deeply nested world file is one line, not a traceback.
 
 Real zenoh on loopback, real MuJoCo, `zensim sim` as users start it where the schedule is measured.
 """
@@ -14,6 +15,9 @@ Real zenoh on loopback, real MuJoCo, `zensim sim` as users start it where the sc
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -156,3 +160,33 @@ def test_ctl_step_in_a_paused_world_checks_mujocos_warnings_and_a_mode_switch_is
     for verb, request in (("mode", {"mode": "floating"}), ("reset", {"mode": "floating"})):
         refused = ctl(zsession, Keys(a).ctl(verb), request)
         assert refused["ok"] is False and "keeps its mode" in refused["error"] and refused["mode"] == "fixed", refused
+
+
+def test_the_sim_logs_resets_at_a_bounded_rate(start_service: Callable[..., Service], zsession: zenoh.Session,
+                                              robot_id: str) -> None:
+    """Issue 27: the sim logged one line per ctl/reset (862 lines a second under a reset flood)."""
+    keys = Keys(robot_id)
+    sim = start_service("sim", "--mode", "fixed")
+    wait_alive(zsession, keys)
+    started = time.monotonic()
+    resets = 0
+    while time.monotonic() - started < 2.0:
+        assert ctl(zsession, keys.ctl("reset"))["ok"]
+        resets += 1
+    seconds = time.monotonic() - started
+    lines = [line for line in sim.log().splitlines() if " reset (mode " in line]
+    assert resets >= 20, f"only {resets} resets in {seconds:.1f} s"
+    assert 1 <= len(lines) <= seconds + 2, f"{len(lines)} log lines for {resets} resets in {seconds:.1f} s"
+    assert "more like it held back" in sim.log()
+
+
+def test_a_deeply_nested_world_file_is_one_line_naming_it(tmp_path: Path) -> None:
+    """Issue 27: a deeply nested world file raised RecursionError, a traceback, instead of naming the file."""
+    nested = tmp_path / "nested.toml"
+    nested.write_text("robots = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    result = subprocess.run([sys.executable, "-m", "zensim", "sim", "--world", str(nested)], capture_output=True,
+                            text=True, timeout=60, env={**os.environ, "ZENSIM_ZENOH_MULTICAST_SCOUTING": "false"})
+    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    assert "Traceback" not in result.stderr, result.stderr[-2000:]
+    lines = [line for line in result.stderr.splitlines() if line.startswith("zensim ")]
+    assert len(lines) == 1 and "nested.toml" in lines[0] and "--world" in lines[0], result.stderr[-2000:]

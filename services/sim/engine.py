@@ -24,6 +24,7 @@ import time
 from collections.abc import Sequence
 from typing import Protocol
 
+from zensim.common.logs import RateLimitedLog
 from zensim.common.pacing import Pacer
 from zensim.robots.builder import ModeFigures, mode_figures
 from zensim.schemas import CtlReply, ResetRequest, bounded
@@ -114,6 +115,10 @@ class Engine:
         self.lockstep = settings.clock == "lockstep"
         for sim in world.robots:  # lockstep: time stands still between advances, so silence is no fault
             sim.watchdog_enabled = not self.lockstep
+        self.request_log = RateLimitedLog(logger)
+        """The log of what requests did (a reset, a mode switch): one line a second however many come."""
+        self._reset_log = RateLimitedLog(logger)
+        """The log of the resets the engine makes itself (broken physics, falls): one line a second."""
         self.work = threading.Event()
         """Set when any endpoint queued a request: the loop waits on this one event for all of them."""
         self.seqs = [0] * len(world)
@@ -258,7 +263,8 @@ class Engine:
         sim = self.world.robots[index]
         sim.physics_resets += 1
         sim.last_reset_reason = bounded(f"the physics broke: {reason}")
-        logger.error("%s: %s: resetting to the default pose", self._name(index), sim.last_reset_reason)
+        self._reset_log.log(logging.ERROR, "%s: %s: resetting to the default pose", self._name(index),
+                            sim.last_reset_reason)
         self.reset_robot(index, ResetRequest())
 
     def _check_falls(self, fallen: list[bool]) -> None:
@@ -272,7 +278,7 @@ class Engine:
             elif sim.fallen_since is None:
                 sim.fallen_since = now
             elif now - sim.fallen_since >= self.settings.fall_reset_delay_s:
-                logger.warning("%s fell: resetting (auto_reset_on_fall)", self._name(index))
+                self._reset_log.warning("%s fell: resetting (auto_reset_on_fall)", self._name(index))
                 sim.last_reset_reason = "fallen (auto_reset_on_fall)"
                 self.reset_robot(index, ResetRequest())
 
@@ -290,7 +296,7 @@ class Engine:
         except ValueError as exc:
             raise CommandError(str(exc)) from None
         self.pacer = Pacer(self.world.timestep_s, self.settings.rtf)
-        logger.info("rebuilt in mode %s", mode)
+        self.request_log.info("rebuilt in mode %s", mode)
 
     def _take_frame(self) -> Frame:
         """Every robot's next-numbered figures of this instant."""

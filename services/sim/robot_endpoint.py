@@ -265,7 +265,7 @@ class RobotEndpoint:
             self.engine.reset_robot(self.index, request)
         except CommandError as exc:
             return self._status_reply(ok=False, error=str(exc))
-        logger.info("%s reset (mode %s)", self.keys.robot, self.sim.mode)
+        self.engine.request_log.info("%s reset (mode %s)", self.keys.robot, self.sim.mode)
         return self._status_reply()
 
     def _pause(self, _request: PauseRequest) -> CtlReply:
@@ -290,7 +290,7 @@ class RobotEndpoint:
         except CommandError as exc:
             return self._status_reply(ok=False, error=bounded(f"ctl/mode: {exc}"))
         if switched:
-            logger.info("%s: mode switched to %s", self.keys.robot, request.mode)
+            self.engine.request_log.info("%s: mode switched to %s", self.keys.robot, request.mode)
         return self._status_reply()
 
     def _status_reply(self, ok: bool = True, error: str | None = None, off_loop: bool = False) -> CtlReply:

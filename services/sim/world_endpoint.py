@@ -129,7 +129,7 @@ class WorldEndpoint:
             return self._reply(ok=False, error="world/reset takes an empty request (every robot to its default "
                                                "pose); send ctl/reset to one robot for a pose, a height or a mode")
         self.engine.reset_world()
-        logger.info("world reset")
+        self.engine.request_log.info("world reset")
         return self._take_reply_state()
 
     # --- world/advance: on the query's thread ------------------------------------------------------

@@ -61,7 +61,7 @@ def read_world_file(path: str) -> WorldFile:
         for entry in world.robots:
             if not all(math.isfinite(v) and abs(v) <= 1e4 for v in entry.xy):
                 raise ValueError(f"robot {entry.id}: xy must be finite and within 10 km")
-    except (OSError, ValueError, msgspec.DecodeError) as exc:
+    except (OSError, ValueError, msgspec.DecodeError, RecursionError) as exc:  # RecursionError: nested too deeply
         raise StartupError(f"world file {path} (--world / ZENSIM_SIM_WORLD): {bounded(str(exc), 400)}") from None
     return world
 
