@@ -7,7 +7,8 @@
 - A world of 8 robots compiles MuJoCo once (each robot compiled its other mode again, only to describe it);
   ctl/reset with a mode and `zensim robot build` compile once (they compiled twice).
 - A world of several robots refuses a mode switch and says why; a world of one rebuilds.
-- Issue 27: resets are logged at a bounded rate; a deeply nested world file is one line, not a traceback.
+- Issue 27: resets are logged at a bounded rate; a deeply nested world file is one line, not a traceback; a
+  command put on a wildcard (`zensim/*/cmd/motors`) is refused by every robot.
 
 Real zenoh on loopback, real MuJoCo, `zensim sim` as users start it where the schedule is measured.
 """
@@ -30,7 +31,7 @@ import zenoh
 from support import Latest, Service, ctl, plain_client, wait_for
 from test_sim_process import wait_alive
 from zensim.robots.cli import main as robot_cli
-from zensim.schemas import Keys, SimStatus
+from zensim.schemas import JointState, Keys, SimStatus
 from zensim.sim.service import SimService, load_world
 from zensim.sim.settings import SimSettings
 
@@ -190,3 +191,30 @@ def test_a_deeply_nested_world_file_is_one_line_naming_it(tmp_path: Path) -> Non
     assert "Traceback" not in result.stderr, result.stderr[-2000:]
     lines = [line for line in result.stderr.splitlines() if line.startswith("zensim ")]
     assert len(lines) == 1 and "nested.toml" in lines[0] and "--world" in lines[0], result.stderr[-2000:]
+
+
+def test_a_command_put_on_a_wildcard_is_refused_by_every_robot(
+        tmp_path: Path, start_service: Callable[..., Service], zsession: zenoh.Session, robot_id: str) -> None:
+    """Issue 27 item 4: a put on `zensim/*/cmd/motors` reached every robot of a world and moved them all (a
+    flood of them took a world down to 0.12 x real time). It is refused, counted, shed like any flood."""
+    a, b = f"{robot_id}-a", f"{robot_id}-b"
+    start_service("sim", "--world", world_file(tmp_path, f"{robot_id}-w", [a, b]), "--watchdog-timeout-s", "60")
+    statuses = {robot: Latest(zsession, Keys(robot).sim_status, SimStatus) for robot in (a, b)}
+    joints = {robot: Latest(zsession, Keys(robot).joints, JointState) for robot in (a, b)}
+    wait_alive(zsession, Keys(b))
+    info = ctl(zsession, Keys(a).robot_info + "?format=json")
+    elbow = info["joint_names"].index("left_elbow_joint")
+    default = info["default_q"]["fixed"][elbow]
+    wildcard = json.dumps({"names": ["left_elbow_joint"], "q": [default + 0.8]})
+    for _ in range(200):
+        zsession.put("zensim/*/cmd/motors", wildcard)
+        time.sleep(0.002)
+    for robot in (a, b):
+        refused = statuses[robot].wait(lambda s: s.rejected_commands > 0, 10, f"{robot} refusing the wildcard")
+        assert "wildcard" in (refused.last_error or ""), refused.last_error
+        t = joints[robot].wait(lambda m: True, 5, "a state").sim_time_s
+        later = joints[robot].wait(lambda m: m.sim_time_s > t + 0.3, 10, "a later state")
+        assert abs(later.q[elbow] - default) < 0.05, f"{robot}'s elbow moved to {later.q[elbow]:.2f} on a wildcard put"
+    # The same command put on a robot's own key moves that robot.
+    zsession.put(Keys(a).motors, wildcard)
+    joints[a].wait(lambda m: abs(m.q[elbow] - default - 0.8) < 0.05, 10, "a's elbow following its own command")

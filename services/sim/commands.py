@@ -14,6 +14,10 @@ CPython makes a waiting thread ask again every switch interval, 0.2 ms in the si
 thread sleeps in zenoh's ring until a command comes, so an idle robot's first command is taken at once.
 
 Under the lockstep clock of a robot alone every command advances, in arrival order: none is shed.
+
+A command put on a wildcard (`zensim/*/cmd/motors`) reaches every robot of a world at once: it is refused,
+never applied, and shed like the rest (the newest of a take refused and counted, the older ones shed
+unread), so a wildcard flood costs each robot at most one refusal per take.
 """
 
 from __future__ import annotations
@@ -36,6 +40,8 @@ Each take decodes only the newest sample of each source and sheds the rest unrea
 one source costs at most one decode per take (500 a second) however fast it comes, and a command
 waits at most this long plus one take's work before it is applied: within 2 physics steps. (1 ms
 takes cost the command thread ~13 % of a core under a 10 kHz flood, 2 ms ~8 %, measured side by side.)"""
+WILDCARD = "wildcard"
+"""The one 'source' of every sample put on a wildcard key (whoever sent it): refused, never applied."""
 COMMAND_POLL_S = 0.0005
 """How often a robot alone's command thread empties zenoh's ring while it waits for the next take (5
 samples of a 10 kHz flood: few enough that the ring holds on to no receive buffers)."""
@@ -55,15 +61,20 @@ class CommandIntake:
 
     Args:
         rings: each robot's ring (the handler of its cmd/motors subscriber), in order.
+        keys: each robot's cmd/motors key: a sample put on any other key expression (a wildcard) is refused.
         take: decodes, checks and applies one sample of robot `index` (on this thread).
+        refuse: refuses one sample of robot `index` put on a wildcard (counted, logged at a bounded rate).
         shed: counts one sample of robot `index` shed unread (this thread is the counter's one writer).
         every_sample: take every sample in arrival order, shedding none (a robot alone under lockstep).
     """
 
-    def __init__(self, rings: Sequence[zenoh.handlers.Handler[zenoh.Sample]], take: Callable[[int, zenoh.Sample], None],
+    def __init__(self, rings: Sequence[zenoh.handlers.Handler[zenoh.Sample]], keys: Sequence[str],
+                 take: Callable[[int, zenoh.Sample], None], refuse: Callable[[int, zenoh.Sample], None],
                  shed: Callable[[int], None], every_sample: bool = False) -> None:
         self._rings = tuple(rings)
+        self._keys = tuple(keys)
         self._take = take
+        self._refuse = refuse
         self._shed = shed
         self._every_sample = every_sample
         self._stop = threading.Event()
@@ -83,14 +94,15 @@ class CommandIntake:
         next_take = 0.0
         while not self._stop.is_set():
             try:
-                for index, ring in enumerate(self._rings):
+                for index, (ring, own_key) in enumerate(zip(self._rings, self._keys)):
                     # A robot alone sleeps in its ring while nothing waits here: its first command comes at once.
                     sample = ring.recv() if alone and not pending else ring.try_recv()
                     while sample is not None:
+                        exact = str(sample.key_expr) == own_key
                         if self._every_sample:
-                            self._apply(index, sample)
+                            self._apply(index, sample, exact)
                         else:
-                            key = (index, source_of(sample))
+                            key = (index, source_of(sample) if exact else WILDCARD)
                             if pending.pop(key, None) is not None:  # re-inserted: keeps arrival order
                                 self._shed(index)
                             pending[key] = sample
@@ -104,13 +116,16 @@ class CommandIntake:
                 self._stop.wait(min(next_take - now, wait_s) if pending else wait_s)
                 continue
             next_take = max(next_take + COMMAND_BATCH_PERIOD_S, now) if not alone else now + COMMAND_BATCH_PERIOD_S
-            for (index, _source), sample in pending.items():
-                self._apply(index, sample)
+            for (index, source), sample in pending.items():
+                self._apply(index, sample, source != WILDCARD)
             pending.clear()
 
-    def _apply(self, index: int, sample: zenoh.Sample) -> None:
+    def _apply(self, index: int, sample: zenoh.Sample, exact: bool) -> None:
         try:
-            self._take(index, sample)
+            if exact:
+                self._take(index, sample)
+            else:
+                self._refuse(index, sample)
         except Exception:  # one robot's failure must not stop every robot's commands
             self._fail_log.exception("taking a command failed")
 

@@ -207,6 +207,12 @@ class RobotEndpoint:
         """One command shed unread (the command thread, the counter's one writer)."""
         self.shed_commands += 1
 
+    def refuse_wildcard(self, sample: zenoh.Sample) -> None:
+        """A command put on a wildcard key (it reaches every robot at once): refused unread, counted."""
+        self.sim.reject(self.command_refusals.refuse(
+            sample.key_expr, f"a command must be put on exactly {self.keys.motors}; one put on a wildcard "
+                             "reaches every robot at once and is refused"))
+
     def take_command(self, sample: zenoh.Sample) -> None:
         """Decode, check and apply one command sample (the engine's command thread)."""
         sim = self.sim

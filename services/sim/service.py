@@ -80,8 +80,9 @@ class SimService:
             for index, robot_id in enumerate(world.sims)]
         self.world_endpoint = WorldEndpoint(session, engine, world_file.robots) if world_file else None
         engine.serve(robots, [self.world_endpoint] if self.world_endpoint else [])
-        self.intake = CommandIntake([robot.commands.handler for robot in robots],
+        self.intake = CommandIntake([robot.commands.handler for robot in robots], [robot.keys.motors for robot in robots],
                                     take=lambda index, sample: robots[index].take_command(sample),
+                                    refuse=lambda index, sample: robots[index].refuse_wildcard(sample),
                                     shed=lambda index: robots[index].count_shed(), every_sample=advances)
         for robot in robots:  # alive/sim last: a client that saw it finds everything served, the world's verbs too
             robot.announce()
