@@ -8,7 +8,8 @@
   ctl/reset with a mode and `zensim robot build` compile once (they compiled twice).
 - A world of several robots refuses a mode switch and says why; a world of one rebuilds.
 - Issue 27: resets are logged at a bounded rate; a deeply nested world file is one line, not a traceback; a
-  command put on a wildcard (`zensim/*/cmd/motors`) is refused by every robot.
+  command put on a wildcard (`zensim/*/cmd/motors`) is refused by every robot; sources a sender claims buy
+  no more decodes (a budget per take, least recently served first).
 
 Real zenoh on loopback, real MuJoCo, `zensim sim` as users start it where the schedule is measured.
 """
@@ -32,6 +33,7 @@ from support import Latest, Service, ctl, plain_client, wait_for
 from test_sim_process import wait_alive
 from zensim.robots.cli import main as robot_cli
 from zensim.schemas import JointState, Keys, SimStatus
+from zensim.sim.commands import Turns
 from zensim.sim.service import SimService, load_world
 from zensim.sim.settings import SimSettings
 
@@ -218,3 +220,64 @@ def test_a_command_put_on_a_wildcard_is_refused_by_every_robot(
     # The same command put on a robot's own key moves that robot.
     zsession.put(Keys(a).motors, wildcard)
     joints[a].wait(lambda m: abs(m.q[elbow] - default - 0.8) < 0.05, 10, "a's elbow following its own command")
+
+
+def test_turns_go_to_the_least_recently_served_source_and_a_refused_one_waits() -> None:
+    """Pure: the budget per take, and who gets it (services/sim/commands.py `Turns`)."""
+    turns = Turns(budget=2)
+    assert turns.choose(["controller"]) == ([0], [])  # a controller's command, before any flood
+    turns.served("controller", accepted=True)
+    flood = [f"f{k}" for k in range(6)]
+    served: list[str] = []
+    for _ in range(3):  # six flooding sources, two turns per take: each waits its turn in rotation
+        chosen, shed = turns.choose(flood)
+        assert len(chosen) == 2 and len(shed) == 4
+        for position in chosen:
+            turns.served(flood[position], accepted=True)
+            served.append(flood[position])
+    assert sorted(served) == sorted(flood), "every flooding source got one turn in three takes"
+    # The controller's next command, among them, is served at once: it waited longer than any flooder (a
+    # flooder claiming a fresh source for each command waits behind it too).
+    chosen, _ = turns.choose([*flood, "fresh", "controller"])
+    assert 7 in chosen and 6 not in chosen
+    # A source whose command was refused goes behind every other for a while.
+    turns.served("controller", accepted=False)
+    for _ in range(10):
+        chosen, _ = turns.choose(["controller", "f0", "f1"])
+        assert 0 not in chosen
+        for position in chosen:
+            turns.served(["controller", "f0", "f1"][position], accepted=True)
+
+
+def test_a_flood_from_many_claimed_sources_costs_the_sim_a_bounded_number_of_decodes(
+        start_service: Callable[..., Service], zsession: zenoh.Session, robot_id: str) -> None:
+    """Issue 27 item 3: the newest command of each source was decoded at every take, and a source is what the
+    sender claims: 64 publishers of one client bought 64 decodes per take (the sim fell to 0.58 x real
+    time). Now a robot decodes at most MAX_DECODES_PER_TAKE per take, a source whose command was refused
+    waits its next turn, and the rest are shed unread."""
+    keys = Keys(robot_id)
+    status = Latest(zsession, keys.sim_status, SimStatus)
+    start_service("sim", "--mode", "fixed", "--watchdog-timeout-s", "60")
+    wait_alive(zsession, keys)
+    before = status.wait(lambda s: True, 10, "a status")
+    publishers = [zsession.declare_publisher(keys.motors) for _ in range(64)]
+    bad = json.dumps({"names": ["no_such_joint"], "q": [0.0]}).encode()
+    started = time.monotonic()
+    bursts = 0
+    while bursts < 300:  # 100 bursts a second of one bad command from each of 64 claimed sources
+        bursts += 1
+        for publisher in publishers:
+            publisher.put(bad, source_info=zenoh.SourceInfo(publisher.id, bursts))
+        time.sleep(max(0.0, started + 0.01 * bursts - time.monotonic()))
+    seq = status.value.seq
+    after = status.wait(lambda s: s.seq > seq + 2, 10, "statuses after the flood")
+    decoded = after.rejected_commands - before.rejected_commands
+    shed = after.shed_commands - before.shed_commands
+    sent = 64 * bursts
+    assert decoded + shed >= sent // 4, f"only {decoded + shed} of {sent} commands reached the sim"
+    # Every source had its turn (16 takes of 4), then each refused one waited REFUSED_PENALTY_TAKES takes for its
+    # next: at most a tenth of the flood was decoded. Before, each take decoded the newest of all 64 sources:
+    # every command of the flood, or nearly, as the takes kept up with the bursts.
+    assert 64 <= decoded <= 0.25 * sent, f"{decoded} of {sent} decoded ({shed} shed): the claimed sources bought decodes"
+    for publisher in publishers:
+        publisher.undeclare()

@@ -213,18 +213,21 @@ class RobotEndpoint:
             sample.key_expr, f"a command must be put on exactly {self.keys.motors}; one put on a wildcard "
                              "reaches every robot at once and is refused"))
 
-    def take_command(self, sample: zenoh.Sample) -> None:
-        """Decode, check and apply one command sample (the engine's command thread)."""
+    def take_command(self, sample: zenoh.Sample) -> bool:
+        """Decode, check and apply one command sample (the engine's command thread); False when refused."""
         sim = self.sim
         try:
             command = decode_input(sample, self.command_codec, self.input_cap_bytes)
             if self.advances:  # lockstep alone: each command advances, on this thread
                 with self.engine.physics:
-                    self._publish(self._advance(command, hold_when_paused=True, key=self.keys.motors))
-                return
+                    advanced = self._advance(command, hold_when_paused=True, key=self.keys.motors)
+                    self._publish(advanced)
+                return advanced.reply.ok
             sim.accept_command(command)
         except (DecodeError, CommandError) as exc:
             sim.reject(self.command_refusals.refuse(sample.key_expr, str(exc)))
+            return False
+        return True
 
     # --- description ------------------------------------------------------------------------------
 
