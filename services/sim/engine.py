@@ -26,7 +26,7 @@ from typing import Protocol
 
 from zensim.common.logs import RateLimitedLog
 from zensim.common.pacing import Pacer
-from zensim.robots.builder import ModeFigures, mode_figures
+from zensim.robots.builder import mode_figures
 from zensim.schemas import CtlReply, ResetRequest, bounded
 from zensim.schemas.messages import Mode, MotorCommand
 
@@ -166,7 +166,10 @@ class Engine:
         rebuilt = request.mode is not None and request.mode != sim.mode
         if rebuilt:
             assert request.mode is not None
-            sim.check_reset(request, self._figures(index, request.mode))  # before anything changes
+            if len(self.world) != 1:  # one model for every robot: each stays in the mode it was built in
+                raise CommandError(f"a world of {len(self.world)} robots keeps its mode ({sim.mode}); restart the "
+                                   "world with another `mode`")
+            sim.check_reset(request, mode_figures(sim.files, request.mode))  # before anything changes
             self._rebuild(request.mode)
         sim.reset(request)
         self.robots[index].jumped(rebuilt)
@@ -287,14 +290,9 @@ class Engine:
     def _name(self, index: int) -> str:
         return list(self.world.sims)[index]
 
-    def _figures(self, index: int, mode: Mode) -> ModeFigures:
-        return mode_figures(self.world.robots[index].files, mode)
-
     def _rebuild(self, mode: Mode) -> None:
-        try:
-            self.world.rebuild(mode)
-        except ValueError as exc:
-            raise CommandError(str(exc)) from None
+        """A world of one in `mode` (one compile), its schedule from now."""
+        self.world.rebuild(mode)
         self.pacer = Pacer(self.world.timestep_s, self.settings.rtf)
         self.request_log.info("rebuilt in mode %s", mode)
 
