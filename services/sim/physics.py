@@ -375,15 +375,6 @@ class Simulation:
         age = self.command_age_s()
         return age is None or age > self.watchdog_timeout_s
 
-    def targets(self) -> MotorTargets:
-        """What the actuators get now: the newest command, or the safe pose under the watchdog."""
-        if self.watchdog_engaged():
-            return self._safe_targets()
-        return self._targets
-
-    def _safe_targets(self) -> MotorTargets:
-        return self._safe
-
     # --- stepping --------------------------------------------------------
 
     def _apply(self, targets: MotorTargets) -> None:
@@ -401,7 +392,7 @@ class Simulation:
         """
         if check_watchdog:
             self._watchdog_on = self.watchdog_engaged()
-        targets = self._safe_targets() if self._watchdog_on else self._targets
+        targets = self._safe if self._watchdog_on else self._targets
         if targets is not self._applied:
             self._apply(targets)
 

@@ -35,6 +35,8 @@ States = tuple[JointState, Odometry, Imu]
 MAX_BACKLOG = 10
 """Frames that may wait for the publisher thread (100 ms of states at 100 Hz); past it the oldest is
 dropped and counted: a late state is worth less than a current one, and memory stays bounded."""
+FEW_ROBOTS = 4
+"""Up to this many robots, a frame's body-frame angular velocities are turned row by row (_rotate_by_inverse)."""
 DRAIN_TIMEOUT_S = 1.0
 """Longest a direct put waits for the frames before it (a put never blocks that long: zenoh drops)."""
 
@@ -102,7 +104,17 @@ class StateReader:
 
 
 def _rotate_by_inverse(quat_wxyz: np.ndarray, vec: np.ndarray) -> np.ndarray:
-    """Each row of `vec` turned by the inverse of each unit quaternion (as mju_rotVecQuat with the conjugate)."""
+    """Each row of `vec` turned by the inverse of each unit quaternion (mju_rotVecQuat with the conjugate).
+
+    A few robots: MuJoCo's own function, row by row (a robot alone: 3 us, where a dozen numpy operations
+    on 1-row arrays took 18 us, 4 % of a lockstep advance); many: numpy, for all rows at once.
+    """
+    if len(quat_wxyz) <= FEW_ROBOTS:
+        out, conj = np.empty_like(vec), np.empty(4)
+        for row, (quat, v) in enumerate(zip(quat_wxyz, vec)):
+            mujoco.mju_negQuat(conj, quat)
+            mujoco.mju_rotVecQuat(out[row], v, conj)
+        return out
     w = quat_wxyz[:, :1]
     u = -quat_wxyz[:, 1:]
     t = 2.0 * _cross(u, vec)
