@@ -223,7 +223,7 @@ class Engine:
 
     def check_falls(self) -> None:
         """After an advance: the fall check the loop makes at each state it publishes."""
-        if not self.paused:
+        if self.settings.auto_reset_on_fall and not self.paused:
             self._check_falls(self.world.fallen(self.world.take(self.seqs)))
 
     def publish_states(self, only: int | None = None) -> None:
@@ -380,7 +380,7 @@ class Engine:
                     frame = self._take_frame()
                     assert self.publisher is not None
                     self.publisher.submit(frame)  # a world's: built and put on its own thread, during the next steps
-                    if not self.paused:
+                    if self.settings.auto_reset_on_fall and not self.paused:  # else no fall is acted on
                         self._check_falls(world.fallen(frame))
             if now >= next_status:
                 waiting = self.lockstep and not self.paused and not self.physics.locked()

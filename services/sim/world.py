@@ -25,7 +25,7 @@ from zensim.schemas.messages import Mode
 
 from .physics import MAX_BASE_RISE_M, MAX_BASE_SPEED_M_S, Limits, Simulation, broken_warning
 from .world_file import WorldFile
-from .world_states import Frame, StateReader
+from .world_states import FEW_ROBOTS, Frame, StateReader
 
 logger = logging.getLogger("zensim.sim")
 
@@ -181,6 +181,8 @@ class World:
         reason = broken_warning(self.data)
         if reason:
             return [(WHOLE_WORLD, reason)]
+        if len(self.robots) <= FEW_ROBOTS:  # a robot alone: its own check costs half the vectorised one
+            return [(index, reason) for index, sim in enumerate(self.robots) if (reason := sim.broken() or "")]
         data, (heights_at, velocities_at, highest) = self.data, self._free
         qpos, qvel = data.qpos, data.qvel
         sound = np.isfinite(qpos).all() and np.isfinite(qvel).all()
