@@ -10,7 +10,7 @@ measures, in one run:
 - lockstep, request/reply: `get` on ctl/advance with a MotorCommand, reply = the new states;
 - lockstep, pub/sub: MotorCommand on cmd/motors, wait for the state/joints of the new instant;
 - the sim's own speed: `zensim sim --rtf 0` (the rtf its state/sim reports) and, in this process,
-  the physics alone (Simulation.step of `lockstep_steps` steps, no network).
+  the physics alone (a world of one advancing `lockstep_steps` steps, as the sim does, no network).
 
 The controller runs at 50 Hz of sim time (lockstep_steps 10 x 2 ms): each command is a PD-style
 function of the state it got back (a squat-and-sway pattern on every joint), encoded as msgpack.
@@ -33,7 +33,8 @@ from harness import Processes, free_port, is_alive, plain_client, wait_for
 from zensim.common.wire import payload_of
 from zensim.robots import robot_files
 from zensim.schemas import AdvanceReply, Codec, JointState, Keys, MotorCommand, RobotInfo, SimStatus
-from zensim.sim.physics import Limits, Simulation
+from zensim.sim.physics import Limits
+from zensim.sim.world import World
 
 ECHO = """
 import sys, threading, zenoh
@@ -160,7 +161,8 @@ def lockstep_pubsub(session: zenoh.Session, keys: Keys, info: RobotInfo, n: int)
 
 def physics_alone(info: RobotInfo, n: int) -> list[float]:
     """Wall time of `lockstep_steps` physics steps in this process, no network (what each round trip must pay)."""
-    sim = Simulation(robot_files("unitree_g1"), info.mode, Limits(5000.0, 500.0), watchdog_timeout_s=1.0)
+    world = World.alone("bench", robot_files("unitree_g1"), info.mode, Limits(5000.0, 500.0), watchdog_timeout_s=1.0)
+    (sim,) = world.robots
     sim.watchdog_enabled = False
     controller = Controller(info)
     q = tuple(controller.default.tolist())
@@ -168,8 +170,8 @@ def physics_alone(info: RobotInfo, n: int) -> list[float]:
     for _ in range(n):
         start = time.perf_counter()
         sim.accept_command(controller.command(q))
-        sim.step(info.lockstep_steps)
-        q = tuple(sim.joint_state(0).q)
+        world.step(info.lockstep_steps, held=True)
+        q = tuple(world.reader.read(world.data, [0])[0][0].q)
         times.append(time.perf_counter() - start)
     return times
 

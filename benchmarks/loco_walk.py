@@ -1,5 +1,5 @@
 """The G1 walking controller (zensim loco: services/loco/controller.py) in-process with the sim's physics:
-walk figures and the cost of one policy step. No network: the same controller and Simulation the services run.
+walk figures and the cost of one policy step. No network: the same controller and World (a world of one) the sim runs.
 
     .venv/bin/python benchmarks/loco_walk.py
 
@@ -20,7 +20,8 @@ from zensim.loco.walk_policy import NUM_OBS, WalkPolicy, load_weights
 from zensim.robots import robot_files
 from zensim.robots.walking import walking_for
 from zensim.schemas import MotorCommand
-from zensim.sim.physics import Limits, Simulation
+from zensim.sim.physics import Limits
+from zensim.sim.world import World
 
 
 def yaw_of(quat_wxyz) -> float:
@@ -29,7 +30,8 @@ def yaw_of(quat_wxyz) -> float:
 
 
 def main() -> None:
-    sim = Simulation(robot_files("g1"), "floating", Limits(5000, 500), 1e9)
+    world = World.alone("bench", robot_files("g1"), "floating", Limits(5000, 500), 1e9)
+    (sim,) = world.robots
     sim.watchdog_enabled = False
     found = walking_for(tuple(sim.robot.joint_names))
     assert found is not None
@@ -40,15 +42,15 @@ def main() -> None:
     def run(seconds: float):  # noqa: ANN202
         nonlocal fell
         for seq in range(int(round(seconds / sim.timestep_s))):
-            js, imu = sim.joint_state(seq), sim.imu(seq)
+            js, _odom, imu = world.reader.read(world.data, [seq])[0]
             targets = ctl.tick(js.sim_time_s, np.array(js.q), np.array(js.dq), np.array(imu.quat_wxyz),
                                np.array(imu.gyro))
             if targets is not None:
                 sim.accept_command(MotorCommand(q=tuple(targets.q), dq=tuple(targets.dq), kp=tuple(targets.kp),
                                                 kd=tuple(targets.kd), tau=tuple(targets.tau)))
-            sim.step(1)
+            world.step(1)
             fell = fell or sim.fallen()
-        return sim.odometry(0)
+        return world.reader.read(world.data, [0])[0][1]
 
     run(0.5)
     ctl.set_fsm(706)

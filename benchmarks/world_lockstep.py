@@ -33,7 +33,7 @@ import zenoh
 from harness import Processes, free_port, is_alive, plain_client, wait_for
 from zensim.schemas import Codec, Keys, MotorCommand, WorldAdvanceReply, WorldAdvanceRequest
 from zensim.sim.settings import SimSettings
-from zensim.sim.world import load_world
+from zensim.sim.service import load_world
 
 ECHO = """
 import threading, zenoh
@@ -97,7 +97,7 @@ def main() -> None:
                                    "--lockstep-steps", str(LOCKSTEP_STEPS))
                 wait_for(lambda: is_alive(session, Keys(ids[-1]).alive("sim")), 60 + 3 * n, "the world up")
                 key = Keys(world_id).world_advance
-                world = load_world(SimSettings(world=str(path)))  # the same robots, for the physics alone
+                world, _ = load_world(SimSettings(world=str(path)))  # the same robots, for the physics alone
                 default_q = next(iter(world.sims.values())).robot.default_q
                 trips: list[float] = []
                 bare: list[float] = []

@@ -21,7 +21,7 @@ from pathlib import Path
 import zenoh
 
 from zensim.sim.settings import SimSettings
-from zensim.sim.world import WorldService, load_world
+from zensim.sim.service import SimService, load_world
 
 
 def main() -> None:
@@ -35,13 +35,13 @@ def main() -> None:
     path.write_text('id = "profile"\n' + "".join(
         f'[[robots]]\nid = "p{k}"\nxy = [{2.0 * (k % side)}, {2.0 * (k // side)}]\n' for k in range(args.robots)))
     settings = SimSettings(world=str(path), rtf=0.0)
-    world = load_world(settings)
+    world, world_file = load_world(settings)
     conf = zenoh.Config()
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
     with zenoh.open(conf) as session:
         stop = threading.Event()
-        service = WorldService(session, settings, world, stop)
+        service = SimService(session, settings, stop, world, world_file)
         threading.Timer(args.seconds, stop.set).start()
         cpu0, wall0 = time.process_time(), time.perf_counter()
         profile = cProfile.Profile()

@@ -13,6 +13,7 @@ damping term implicitly, which an explicit PD computed in Python cannot do at kd
 from __future__ import annotations
 
 import fnmatch
+import functools
 import logging
 import math
 from dataclasses import dataclass, field
@@ -29,7 +30,8 @@ from zensim.robots.description import Description, Joint, RobotModelError, parse
 from zensim.robots.mesh_files import resolve_mesh
 from zensim.robots import terrain as terrain_shapes
 
-__all__ = ["MODES", "Placement", "Robot", "RobotModelError", "build", "build_world", "mjcf_xml", "place_base"]
+__all__ = ["MODES", "ModeFigures", "Placement", "Robot", "RobotModelError", "build", "build_with_mjcf", "build_world",
+           "mode_figures", "place_base"]
 
 logger = logging.getLogger(__name__)
 
@@ -522,11 +524,52 @@ def spawn_pose(robot: Robot, height: float) -> list[float]:
     return [*robot.spawn_xy, height, math.cos(half), 0.0, 0.0, math.sin(half)]
 
 
-def mjcf_xml(files: RobotFiles, mode: Mode) -> str:
-    """The completed MJCF for inspection (what `build` compiles), with absolute mesh paths.
+def build_with_mjcf(files: RobotFiles, mode: Mode) -> tuple[Robot, str]:
+    """`build`, and the completed MJCF it compiled, with absolute mesh paths (`zensim robot build`): one compile.
 
-    The base height is the control file's, or 0 where the control file leaves it to be derived.
+    The MJCF's base height is the control file's, or 0 where the control file leaves it to be derived.
     """
     prepared = _prepare(files, mode)
-    _compile(prepared, files)
-    return prepared.spec.to_xml()
+    model = _compile(prepared, files)
+    robot = _robot_from(prepared, model, files, mode)
+    _place_spawn(robot)
+    return robot, prepared.spec.to_xml()
+
+
+@dataclass(frozen=True)
+class ModeFigures:
+    """What a robot is in one mode, for its description (RobotInfo's per-mode fields), without running it."""
+
+    default_q: np.ndarray
+    kp: np.ndarray
+    kd: np.ndarray
+    base_height_m: float
+
+
+def mode_figures(files: RobotFiles, mode: Mode, terrain: Terrain | None = None) -> ModeFigures:
+    """A robot's default pose, gains and spawn height in `mode` (`_mode_figures`); on terrain a floating
+    robot's spawn height follows the ground under it, which only a build with the terrain tells."""
+    if terrain is not None and mode == "floating":
+        robot = build(files, mode, terrain)
+        return ModeFigures(robot.default_q, robot.kp, robot.kd, robot.base_height_m)
+    return _mode_figures(files, mode)
+
+
+@functools.lru_cache(maxsize=64)  # a world of 32 G1s asks 32 times for the same figures
+def _mode_figures(files: RobotFiles, mode: Mode) -> ModeFigures:
+    """A robot's default pose, gains and spawn height in `mode`, read from its files.
+
+    Compiles MuJoCo only when the control file leaves the spawn height to be derived from the model: a
+    sim describes both modes of its robot, and a world of N robots used to compile each robot's other
+    mode once more at start (N extra compiles) only to read these four figures.
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    control = load_control(files.control)
+    height = getattr(control, mode).base_height_m
+    if height is None:
+        robot = build(files, mode)
+        return ModeFigures(robot.default_q, robot.kp, robot.kd, robot.base_height_m)
+    joints = parse_urdf(files.urdf.read_text()).actuated_joints
+    kp, kd = resolve_gains(getattr(control, mode), joints)
+    return ModeFigures(resolve_pose(control, joints), kp, kd, float(height))

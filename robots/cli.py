@@ -16,7 +16,7 @@ from pathlib import Path
 import msgspec
 
 from zensim.robots import DEFAULT_ROBOT, robot_files
-from zensim.robots.builder import MODES, Robot, build, mjcf_xml
+from zensim.robots.builder import MODES, Robot, build, build_with_mjcf
 from zensim.robots.control import ControlConfigError
 
 logger = logging.getLogger(__name__)
@@ -116,7 +116,7 @@ def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     try:
         files = robot_files(args.robot, urdf=args.urdf, control=args.control)
-        robot = build(files, args.mode)
+        robot, mjcf = build_with_mjcf(files, args.mode) if args.command == "build" else (build(files, args.mode), "")
     except (FileNotFoundError, ValueError) as exc:  # ControlConfigError/RobotModelError are ValueErrors
         sys.stderr.write(f"zensim robot: {exc}\n")
         return 2
@@ -127,7 +127,7 @@ def main(argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     stem = f"{robot.name}_{args.mode}"
     mjcf_path, control_path = out / f"{stem}.xml", out / f"{stem}_control.toml"
-    mjcf_path.write_text(mjcf_xml(files, args.mode))
+    mjcf_path.write_text(mjcf)
     header = (f"# Resolved by `zensim robot build` from {files.urdf} and {files.control or '(defaults)'}.\n"
               "# Informational: the simulator reads the URDF and control.toml, not this file.\n")
     control_path.write_text(header + to_toml(resolved_control(robot)))

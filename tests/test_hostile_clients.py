@@ -413,13 +413,15 @@ class TestBoundsWithoutLimits:
     def test_fallback_bounds_apply_when_the_description_gives_none(self, tmp_path) -> None:
         from zensim.robots import robot_files
         from zensim.schemas import MotorCommand
-        from zensim.sim.physics import FALLBACK_EFFORT_LIMIT, CommandError, Limits, Simulation
+        from zensim.sim.physics import FALLBACK_EFFORT_LIMIT, CommandError, Limits
+        from zensim.sim.world import World
 
         urdf = tmp_path / "nolimits.urdf"
         inertial = '<inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>'
         urdf.write_text(f"""<robot name="nolimits"><link name="base">{inertial}</link><link name="arm">{inertial}</link>
           <joint name="j" type="continuous"><parent link="base"/><child link="arm"/><axis xyz="0 1 0"/></joint></robot>""")
-        sim = Simulation(robot_files(urdf=urdf), "fixed", Limits(max_kp=5000, max_kd=500), watchdog_timeout_s=0.5)
+        (sim,) = World.alone("nolimits", robot_files(urdf=urdf), "fixed", Limits(max_kp=5000, max_kd=500),
+                             watchdog_timeout_s=0.5).robots
         sim.accept_command(MotorCommand(q=(0.1,), tau=(FALLBACK_EFFORT_LIMIT,)))
         with pytest.raises(CommandError, match="tau"):
             sim.accept_command(MotorCommand(q=(0.1,), tau=(1e11,)))

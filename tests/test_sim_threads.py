@@ -23,46 +23,56 @@ import zenoh
 
 from support import Latest, ctl, plain_client, wait_for
 from test_sim_process import wait_alive
-from zensim.robots import robot_files
 from zensim.schemas import Keys, SimStatus
-from zensim.sim.physics import Limits, Simulation
-from zensim.sim.service import PhysicsLock, SimService
+from zensim.sim.engine import PhysicsLock
+from zensim.sim.physics import Simulation
+from zensim.sim.service import SimService, load_world
 from zensim.sim.settings import SimSettings
+from zensim.sim.world import World
 
 
-class GuardedSimulation(Simulation):
-    """The real Simulation; every access to its MjData from a thread without the physics lock is recorded."""
+class Guarded:
+    """Every access to an object's MjData (`data`) from a thread without the physics lock is recorded."""
 
     physics: PhysicsLock | None = None
-    offences: list[str]
+    offences: list[str] = []
 
     @property
     def data(self):
-        lock = self.physics
+        lock = Guarded.physics
         if lock is not None and not lock.held():
             frames = traceback.extract_stack(limit=6)[:-1]
             where = " <- ".join(f"{f.name}:{f.lineno}" for f in reversed(frames))
-            self.offences.append(f"{threading.current_thread().name}: {where}")
-        return self._data
+            Guarded.offences.append(f"{threading.current_thread().name}: {where}")
+        return self.__dict__["data"]
 
     @data.setter
     def data(self, value) -> None:
-        self._data = value
+        self.__dict__["data"] = value
 
 
-def serve_in_thread(router_endpoint: str, settings: SimSettings) -> tuple[SimService, GuardedSimulation, threading.Thread,
+class GuardedWorld(Guarded, World):
+    """The real World; its MjData guarded."""
+
+
+class GuardedSimulation(Guarded, Simulation):
+    """The real Simulation; its view of the world's MjData guarded."""
+
+
+def serve_in_thread(router_endpoint: str, settings: SimSettings) -> tuple[SimService, list[str], threading.Thread,
                                                                            threading.Event, zenoh.Session]:
-    sim = GuardedSimulation.__new__(GuardedSimulation)
-    sim.offences = []
-    Simulation.__init__(sim, robot_files(settings.robot), settings.mode, Limits(max_kp=settings.max_kp,
-                        max_kd=settings.max_kd), watchdog_timeout_s=settings.watchdog_timeout_s)
+    world, _ = load_world(settings)
+    world.__class__ = GuardedWorld
+    for sim in world.robots:
+        sim.__class__ = GuardedSimulation
     session = plain_client(router_endpoint)
     stop = threading.Event()
-    service = SimService(session, settings, sim, stop)
-    sim.physics = service.physics  # from here on, every MjData access must hold it
+    service = SimService(session, settings, stop, world)
+    Guarded.offences = []
+    Guarded.physics = service.engine.physics  # from here on, every MjData access must hold it
     thread = threading.Thread(target=service.run, name="sim-loop", daemon=True)
     thread.start()
-    return service, sim, thread, stop, session
+    return service, Guarded.offences, thread, stop, session
 
 
 def bad_and_wildcard_queries(client: zenoh.Session, keys: Keys) -> None:
@@ -80,12 +90,12 @@ def test_mjdata_is_touched_only_with_the_physics_lock_held(router_endpoint: str,
     keys = Keys(robot_id)
     settings = SimSettings(robot_id=robot_id, mode="fixed", clock=clock, status_rate_hz=100.0, state_rate_hz=250.0,
                            watchdog_timeout_s=30.0)
-    service, sim, thread, stop, session = serve_in_thread(router_endpoint, settings)
+    service, offences, thread, stop, session = serve_in_thread(router_endpoint, settings)
+    n = service.world.robots[0].robot.nu
     try:
         with plain_client(router_endpoint) as client:
             status = Latest(client, keys.sim_status, SimStatus)
             status.wait(what="a first status", timeout_s=15)
-            n = sim.robot.nu
             motors = client.declare_publisher(keys.motors)
             sent = threading.Event()
 
@@ -120,8 +130,9 @@ def test_mjdata_is_touched_only_with_the_physics_lock_held(router_endpoint: str,
         thread.join(10)
         service.close()
         session.close()
-    assert not sim.offences, f"{len(sim.offences)} MjData accesses without the physics lock, e.g.:\n" + \
-        "\n".join(sorted(set(sim.offences))[:10])
+    Guarded.physics = None
+    assert not offences, f"{len(offences)} MjData accesses without the physics lock, e.g.:\n" + \
+        "\n".join(sorted(set(offences))[:10])
 
 
 def handled_in_order(session: zenoh.Session, keys: Keys) -> None:

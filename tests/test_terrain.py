@@ -20,6 +20,7 @@ from zensim.robots.terrain import TerrainError, add_to_spec, ground_at, load_ter
 from zensim.schemas import Codec, RobotInfo
 from zensim.schemas.messages import RoughGround, Terrain
 from zensim.sim.physics import Limits, Simulation
+from zensim.sim.world import World
 
 TAN10 = math.tan(math.radians(10))
 COURSE: dict[str, Any] = {"features": [
@@ -156,9 +157,10 @@ class TestDroppedBox:
 
 def standing(terrain: Terrain | None, seconds: float = 2.0) -> Simulation:
     """The G1 holding its default pose on `terrain` for `seconds`."""
-    sim = Simulation(robot_files("g1"), "floating", Limits(max_kp=5000, max_kd=500), 0.5, terrain=terrain)
+    world = World.alone("g1", robot_files("g1"), "floating", Limits(max_kp=5000, max_kd=500), 0.5, terrain=terrain)
+    (sim,) = world.robots
     sim.watchdog_enabled = False  # no commands: the default pose on its gains, as the watchdog would hold
-    sim.step(int(seconds / sim.timestep_s))
+    world.step(int(seconds / world.timestep_s))
     return sim
 
 

@@ -22,7 +22,9 @@ from test_record_process import stop_recorder, zensim
 from zensim.mcapfile import ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter
 from zensim.robots import robot_files
 from zensim.schemas import AppliedCommand, Codec, JointState, Keys, MotorCommand, SimStatus
-from zensim.sim.physics import Limits, Simulation
+from zensim.robots.builder import ModeFigures
+from zensim.sim.physics import Limits
+from zensim.sim.world import World
 
 
 def strict_loads(data: bytes) -> object:
@@ -91,14 +93,16 @@ class TestRecorderUnderHostileSamples:
 def write_recording(path: Path, robot_id: str, items: list[tuple[str, object]], *, metadata_robot: str | None = "g1",
                     info: bool = True) -> None:
     """An MCAP file laid out as `zensim record` writes it, holding exactly `items` (relative key, message)."""
-    sim = Simulation(robot_files("g1"), "fixed", Limits(max_kp=5000, max_kd=500), watchdog_timeout_s=0.5)
+    (sim,) = World.alone("g1", robot_files("g1"), "fixed", Limits(max_kp=5000, max_kd=500), watchdog_timeout_s=0.5).robots
     keys = Keys(robot_id)
     with path.open("wb") as stream:
         writer = RecordingWriter(stream, metadata_robot or "g1")
         if metadata_robot is None:  # a file whose metadata lost its robot id
             writer._writer.add_metadata("zensim", {"format_version": "1"})  # noqa: SLF001 - forging on purpose
         if info:
-            robot_info = sim.robot_info(keys, 100.0, 10.0, {"fixed": sim.robot})
+            robot = sim.robot
+            robot_info = sim.robot_info(keys, 100.0, 10.0, {"fixed": ModeFigures(robot.default_q, robot.kp, robot.kd,
+                                                                                 robot.base_height_m)})
             writer.attach(ROBOT_INFO_ATTACHMENT, "application/json", msgspec.json.encode(robot_info), 1)
             writer.attach(URDF_ATTACHMENT, "application/xml", b"<robot name='g1'/>", 1)
         for n, (relative, message) in enumerate(items):
@@ -115,17 +119,23 @@ def write_recording(path: Path, robot_id: str, items: list[tuple[str, object]], 
 
 def lockstep_states(steps: int = 10, commands: int = 5) -> list[tuple[str, Any]]:
     """A short genuine lockstep run of the fixed-base G1: states, each command applied, the states after it."""
-    sim = Simulation(robot_files("g1"), "fixed", Limits(max_kp=5000, max_kd=500), watchdog_timeout_s=0.5)
+    world = World.alone("g1", robot_files("g1"), "fixed", Limits(max_kp=5000, max_kd=500), watchdog_timeout_s=0.5)
+    (sim,) = world.robots
     sim.watchdog_enabled = False
-    items: list[tuple[str, object]] = [("state/joints", sim.joint_state(0)), ("state/odom", sim.odometry(0))]
+
+    def states(seq: int) -> list[tuple[str, object]]:
+        joints, odom, _imu = world.reader.read(world.data, [seq])[0]
+        return [("state/joints", joints), ("state/odom", odom)]
+
+    items = states(0)
     q = sim.robot.default_q.tolist()
     for k in range(commands):
         q[0] += 0.05
         command = MotorCommand(q=tuple(q))
         applied = AppliedCommand(sim_time_s=sim.sim_time_s, seq=k + 1, steps=steps, command=command)
         sim.accept_command(command)
-        sim.step(steps)
-        items += [("state/joints", sim.joint_state(k + 1)), ("state/odom", sim.odometry(k + 1)), ("state/applied", applied)]
+        world.step(steps, held=True)  # as the sim advances a lockstep command
+        items += [*states(k + 1), ("state/applied", applied)]
     return items
 
 

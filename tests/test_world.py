@@ -9,16 +9,28 @@ import pytest
 
 from support import TWO_JOINT_ARM
 from zensim.common.session import StartupError
-from zensim.schemas import MotorCommand
+from zensim.schemas import Imu, JointState, MotorCommand, Odometry
+from zensim.sim.mjdata import read_base, read_imu
+from zensim.sim.service import load_world
 from zensim.sim.settings import SimSettings
-from zensim.sim.world import World, load_world, read_world_file
+from zensim.sim.world import World
+from zensim.sim.world_file import read_world_file
 
 
 def make_world(tmp_path: Path, body: str) -> World:
     (tmp_path / "arm.urdf").write_text(TWO_JOINT_ARM)
     path = tmp_path / "world.toml"
     path.write_text(body)
-    return load_world(SimSettings(world=str(path)))
+    return load_world(SimSettings(world=str(path)))[0]
+
+
+def states(world: World, robot: str) -> tuple[JointState, Odometry, Imu]:
+    """One robot's states now, as the sim reads them (the world's one reader)."""
+    return world.reader.read(world.data, [0] * len(world))[list(world.sims).index(robot)]
+
+
+def pos(world: World, robot: str) -> list[float]:
+    return list(states(world, robot)[1].pos)
 
 
 THREE = """
@@ -48,14 +60,14 @@ def hold(world: World, robot: str, changes: dict[str, float] | None = None) -> N
 def test_robots_spawn_where_the_file_says_and_stand_alone_as_a_robot_alone(tmp_path: Path) -> None:
     world = make_world(tmp_path, THREE)
     a, b, arm = world.sims["a"], world.sims["b"], world.sims["arm"]
-    assert np.allclose(b.odometry(0).pos[:2], [1.0, 0.0]) and np.allclose(arm.odometry(0).pos[:2], [0.0, 3.0])
-    assert b.odometry(0).quat_wxyz[3] == pytest.approx(1.0)  # facing -x
+    assert np.allclose(pos(world, "b")[:2], [1.0, 0.0]) and np.allclose(pos(world, "arm")[:2], [0.0, 3.0])
+    assert states(world, "b")[1].quat_wxyz[3] == pytest.approx(1.0)  # facing -x
     assert (a.mode, arm.mode) == ("floating", "fixed")
     hold(world, "a")
     hold(world, "b")
     world.step(1000)
-    for sim in (a, b):
-        assert sim.odometry(0).pos[2] > 0.65 and not sim.fallen()
+    for name, sim in (("a", a), ("b", b)):
+        assert pos(world, name)[2] > 0.65 and not sim.fallen()
     assert world.data.time == pytest.approx(2.0)
 
 
@@ -63,12 +75,18 @@ def test_one_reader_for_all_robots_says_what_each_robot_says(tmp_path: Path) -> 
     world = make_world(tmp_path, THREE)
     hold(world, "a", {"left_elbow_joint": 1.0})
     world.step(300)
-    for (joints, odom, imu), sim in zip(world.reader.read(world.data, [7, 8, 9]), world.sims.values()):
-        assert joints == sim.joint_state(joints.seq)
-        alone = sim.odometry(odom.seq)
-        assert odom.pos == alone.pos and odom.quat_wxyz == alone.quat_wxyz
-        assert np.allclose(odom.ang_vel_body, alone.ang_vel_body, atol=1e-12)
-        assert imu == sim.imu(imu.seq)
+    data = world.data
+    for (joints, odom, imu), sim in zip(world.reader.read(data, [7, 8, 9]), world.sims.values()):
+        robot = sim.robot
+        assert joints.seq == 7 + list(world.sims.values()).index(sim) and joints.sim_time_s == data.time
+        assert joints.q == data.qpos[robot.qpos_adr].tolist() and joints.dq == data.qvel[robot.dof_adr].tolist()
+        assert joints.tau == data.qfrc_actuator[robot.dof_adr].tolist()
+        base_pos, quat, lin_vel, ang_vel = read_base(robot, data)
+        assert odom.pos == base_pos.tolist() and odom.quat_wxyz == quat.tolist()
+        assert odom.lin_vel_world == lin_vel.tolist()
+        assert np.allclose(odom.ang_vel_body, ang_vel, atol=1e-12)
+        imu_quat, gyro, accel = read_imu(robot, data)
+        assert (imu.quat_wxyz, imu.gyro, imu.accel) == (imu_quat.tolist(), gyro.tolist(), accel.tolist())
 
 
 def test_robots_collide_and_a_reset_of_one_leaves_the_others_bit_identical(tmp_path: Path) -> None:
@@ -85,14 +103,15 @@ def test_robots_collide_and_a_reset_of_one_leaves_the_others_bit_identical(tmp_p
             one, two = bodies[contact.geom1], bodies[contact.geom2]
             touching += bool(one and two and (one < b.robot.slot.bodies.start) != (two < b.robot.slot.bodies.start))
     assert touching > 0
-    assert a.fallen() and a.odometry(0).pos[0] < -0.2  # pushed over backwards by b
-    before = {name: (sim.joint_state(0), sim.odometry(0)) for name, sim in world.sims.items() if name != "b"}
+    assert a.fallen() and pos(world, "a")[0] < -0.2  # pushed over backwards by b
+    before = {name: states(world, name) for name in world.sims if name != "b"}
     t = world.data.time
     b.reset()
     assert world.data.time == t
-    assert b.odometry(0).pos == pytest.approx([1.0, 0.0, b.robot.base_height_m])
-    for name, (joints, odom) in before.items():
-        assert world.sims[name].joint_state(0) == joints and world.sims[name].odometry(0) == odom
+    assert pos(world, "b") == pytest.approx([1.0, 0.0, b.robot.base_height_m])
+    for name, (joints, odom, _imu) in before.items():
+        now_joints, now_odom, _ = states(world, name)
+        assert now_joints == joints and now_odom == odom
 
 
 def test_bad_world_files_are_refused_with_the_reason(tmp_path: Path) -> None:

@@ -26,7 +26,8 @@ from zensim.common.claim import current_owner, taken_message
 from zensim.common.entry import fail, serve
 from zensim.common.logs import setup_logging
 from zensim.common.settings import CommonSettings, settings_or_exit, zero_or_at_least
-from zensim.common.wire import TypedPublisher, reply
+from zensim.common.description import DescriptionServer, MeshError
+from zensim.common.wire import Refusals, TypedPublisher
 from zensim.schemas import Keys, Message, check_robot_id
 
 from .mcapfile import Recording, read_recording
@@ -79,34 +80,17 @@ class Replay:
                     and isinstance(item.message, Message):
                 key = f"{self.keys.root}/{item.relative_key}"
                 self.publishers[item.relative_key] = TypedPublisher(session, key, type(item.message))
-        self._declared = [
-            session.declare_queryable(self.keys.robot_info, self._on_info),
-            session.declare_queryable(self.keys.urdf, self._on_urdf),
-            session.declare_queryable(self.keys.mesh_any, self._on_mesh),
-        ]
         self._meshes_by_key = {self.keys.mesh(path): data for path, data in recording.meshes.items()}
+        # info/* under the sim's rules (common/description.py): a replay stands in for the sim.
+        self.description = DescriptionServer(session, self.keys, Refusals(logger, "query"), lambda: self.info,
+                                             lambda: recording.urdf, self._mesh, missing="the recording")
         self.tokens = [session.liveliness().declare_token(self.keys.alive(name)) for name in ("sim", "replay")]
 
-    def _on_info(self, query: zenoh.Query) -> None:
-        if self.info is None:
-            query.reply_err(b"the recording holds no info/robot")
-            return
-        wants_json = "format=json" in str(query.parameters)
-        reply(query, self.keys.robot_info, self.info, "json" if wants_json else "msgpack")
-
-    def _on_urdf(self, query: zenoh.Query) -> None:
-        if self.recording.urdf is None:
-            query.reply_err(b"the recording holds no info/urdf")
-            return
-        query.reply(self.keys.urdf, self.recording.urdf.encode(), encoding=zenoh.Encoding.APPLICATION_XML)
-
-    def _on_mesh(self, query: zenoh.Query) -> None:
-        key = str(query.key_expr)
+    def _mesh(self, key: str) -> bytes:
         data = self._meshes_by_key.get(key)
         if data is None:
-            query.reply_err(b"no such mesh in the recording (RobotInfo.mesh_paths lists them; older recordings hold none)")
-            return
-        query.reply(key, data, encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM)
+            raise MeshError("no such mesh in the recording (RobotInfo.mesh_paths lists them; older recordings hold none)")
+        return data
 
     def play(self, rate: float, stop: threading.Event) -> int:
         """Publish every recorded state at its recorded pace / rate; returns how many went out."""
@@ -137,8 +121,7 @@ class Replay:
     def close(self) -> None:
         for token in self.tokens:
             token.undeclare()
-        for declared in self._declared:
-            declared.undeclare()
+        self.description.undeclare()
         for publisher in self.publishers.values():
             publisher.undeclare()
 

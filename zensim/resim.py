@@ -1,6 +1,6 @@
 """`zensim resim FILE`: run a recording's commands through the physics again and report how far it drifts.
 
-No network: the physics (zensim.sim.physics) runs in this process, built from the bundled robot (or
+No network: the physics (zensim.sim.world, a world of one) runs in this process, built from the bundled robot (or
 `--urdf`/`--control`) in the recorded mode and timestep, and checked against the recorded RobotInfo.
 
 Lockstep recordings hold `state/applied`: every command with the exact sim time it took effect and
@@ -36,9 +36,10 @@ import numpy as np
 
 from zensim.common.settings import settings_or_exit
 from zensim.robots import robot_files
-from zensim.schemas import AppliedCommand, JointState, MotorCommand, Odometry, ResetRequest
+from zensim.schemas import AppliedCommand, Imu, JointState, MotorCommand, Odometry, ResetRequest
 from zensim.schemas.messages import MAX_STEPS_PER_REQUEST
-from zensim.sim.physics import CommandError, Limits, Simulation
+from zensim.sim.physics import CommandError, Limits
+from zensim.sim.world import World
 
 from .mcapfile import Recording, read_recording
 from .replay import leading_file_argument
@@ -97,17 +98,21 @@ class Divergence:
     skipped: int = 0
     notes: list[str] = field(default_factory=list)
 
-    def add(self, sim: Simulation, joints: JointState | None, odom: Odometry | None) -> None:
+    def add(self, world: World, joints: JointState | None, odom: Odometry | None) -> None:
         if joints is None and odom is None:
             return
         self.compared += 1
+        mine, mine_odom, _imu = read_states(world)
         if joints is not None:
-            mine = sim.joint_state(0)
             self.joint_rad = max(self.joint_rad, float(np.max(np.abs(np.subtract(mine.q, joints.q)))))
         if odom is not None:
-            mine_odom = sim.odometry(0)
             self.base_pos_m = max(self.base_pos_m, float(np.max(np.abs(np.subtract(mine_odom.pos, odom.pos)))))
             self.base_rot_rad = max(self.base_rot_rad, rotation_between(mine_odom.quat_wxyz, odom.quat_wxyz))
+
+
+def read_states(world: World) -> tuple[JointState, Odometry, Imu]:
+    """The robot's states now, read as the sim reads them (the world's one state reader)."""
+    return world.reader.read(world.data, [0])[0]
 
 
 def rotation_between(a_wxyz: Sequence[float], b_wxyz: Sequence[float]) -> float:
@@ -151,18 +156,20 @@ class StateIndex:
         return self.joints.get(_instant(t)), self.odom.get(_instant(t))
 
 
-def place(sim: Simulation, joints: JointState, odom: Odometry) -> bool:
+def place(world: World, joints: JointState, odom: Odometry) -> bool:
     """Put the physics in a recorded state. Returns True when that state is exactly a reset state.
 
     A reset zeroes everything MuJoCo carries from step to step (solver warm start included), so a
     recorded state at t = 0 is recreated bit for bit by a reset to its pose. A state taken mid-run
     sets positions and velocities only: the warm start differs, so tiny differences follow.
     """
+    (sim,) = world.robots
     sim.reset(ResetRequest(q=tuple(joints.q), base_height_m=odom.pos[2]))
-    if joints.sim_time_s == 0.0 and list(sim.joint_state(0).q) == list(joints.q) \
-            and list(sim.odometry(0).pos) == list(odom.pos) and list(sim.odometry(0).quat_wxyz) == list(odom.quat_wxyz):
+    mine, mine_odom, _imu = read_states(world)
+    if joints.sim_time_s == 0.0 and list(mine.q) == list(joints.q) \
+            and list(mine_odom.pos) == list(odom.pos) and list(mine_odom.quat_wxyz) == list(odom.quat_wxyz):
         return True
-    robot, data = sim.robot, sim.data
+    robot, data = sim.robot, world.data
     data.qpos[robot.qpos_adr] = joints.q
     data.qvel[robot.dof_adr] = joints.dq
     if robot.free_qpos_adr >= 0:
@@ -177,7 +184,8 @@ def place(sim: Simulation, joints: JointState, odom: Odometry) -> bool:
     return False
 
 
-def resim_lockstep(sim: Simulation, recording: Recording, applied: list[AppliedCommand], budget: Budget) -> Divergence:
+def resim_lockstep(world: World, recording: Recording, applied: list[AppliedCommand], budget: Budget) -> Divergence:
+    (sim,) = world.robots
     states = StateIndex(recording, sim.robot.nu)
     result = Divergence()
     synced = False
@@ -193,7 +201,7 @@ def resim_lockstep(sim: Simulation, recording: Recording, applied: list[AppliedC
             # The start, or the recording's sim was reset (or stepped by hand) since the last command.
             joints, odom = states.at(command.sim_time_s)
             if joints is not None and odom is not None:
-                result.exact_start = place(sim, joints, odom) and result.exact_start
+                result.exact_start = place(world, joints, odom) and result.exact_start
             elif command.sim_time_s == 0.0:
                 # A sim publishes its t = 0 state before anyone may listen: a recorder started after the
                 # sim missed it. A command at t = 0 follows a reset; the default one is the likely one
@@ -210,15 +218,16 @@ def resim_lockstep(sim: Simulation, recording: Recording, applied: list[AppliedC
         except CommandError as exc:  # the recording sim refused it too (and did not step)
             result.notes.append(f"command {command.seq} refused: {exc}")
             continue
-        sim.step(command.steps)
+        world.step(command.steps, held=True)  # as the sim advances: the command held over its steps
         result.commands += 1
         result.sim_time_s = sim.sim_time_s
-        result.add(sim, *states.at(sim.sim_time_s))
+        result.add(world, *states.at(sim.sim_time_s))
     return result
 
 
-def resim_realtime(sim: Simulation, recording: Recording, budget: Budget) -> Divergence:
+def resim_realtime(world: World, recording: Recording, budget: Budget) -> Divergence:
     """Commands placed at the last recorded state before their arrival (see the module docstring)."""
+    (sim,) = world.robots
     result = Divergence(exact_start=False)
     timeline: list[tuple[float, object]] = []
     last_t: float | None = None
@@ -237,8 +246,8 @@ def resim_realtime(sim: Simulation, recording: Recording, budget: Budget) -> Div
         result.notes.append("no recorded states to start from")
         return result
     t0, first = states[0]
-    place(sim, first, pending_odom[t0])
-    dt = sim.timestep_s
+    place(world, first, pending_odom[t0])
+    dt = world.timestep_s
     for t, message in timeline:
         budget.check(sim.sim_time_s)
         if t < t0:
@@ -255,12 +264,12 @@ def resim_realtime(sim: Simulation, recording: Recording, budget: Budget) -> Div
             # Longer than any sim steps between two states: a forged or damaged time. Start over there.
             result.notes.append(f"a gap of {t - sim.sim_time_s:.6g} s between recorded states was not stepped "
                                 f"through: re-started from the state at t = {t:.6g} s")
-            place(sim, message, pending_odom[t])  # type: ignore[arg-type]
+            place(world, message, pending_odom[t])  # type: ignore[arg-type]
             continue
         if 0 < n <= MAX_STEPS_PER_REQUEST:
-            sim.step(n)
+            world.step(n)
             result.sim_time_s = sim.sim_time_s
-            result.add(sim, message if isinstance(message, JointState) else None, pending_odom.get(t))
+            result.add(world, message if isinstance(message, JointState) else None, pending_odom.get(t))
     return result
 
 
@@ -301,19 +310,21 @@ def one_segment(recording: Recording) -> tuple[str, str | None]:
                   f"{mode} mode from t = {first:.3f} s")
 
 
-def build_sim(settings: ResimSettings, recording: Recording, mode: str) -> Simulation:
+def build_sim(settings: ResimSettings, recording: Recording, mode: str) -> World:
+    """A world of the recorded robot, as the recording sim had it (its mode, step and bounds)."""
     info = recording.robot_info
     if info is None:
         raise ValueError("the recording holds no info/robot: start `zensim record` while the sim runs")
     files = robot_files(None if settings.urdf else settings.robot, urdf=settings.urdf, control=settings.control)
-    sim = Simulation(files, mode, Limits(max_kp=settings.max_kp, max_kd=settings.max_kd),  # type: ignore[arg-type]
-                     watchdog_timeout_s=info.watchdog_timeout_s, timestep_s=info.timestep_s,
-                     terrain=info.terrain)  # the recorded ground: the same run needs the same terrain
+    world = World.alone("resim", files, mode, Limits(max_kp=settings.max_kp, max_kd=settings.max_kd),  # type: ignore[arg-type]
+                        watchdog_timeout_s=info.watchdog_timeout_s, timestep_s=info.timestep_s,
+                        terrain=info.terrain)  # the recorded ground: the same run needs the same terrain
+    (sim,) = world.robots
     sim.watchdog_enabled = False  # wall-clock silences are not in the recording
     if tuple(sim.robot.joint_names) != tuple(info.joint_names):
         raise ValueError(f"the recording is of {info.model} with other joints than {sim.robot.name}; "
                          "pass the recorded robot with --robot or --urdf")
-    return sim
+    return world
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -325,7 +336,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         recording = read_recording(settings.file)
         mode, cut = one_segment(recording)
-        sim = build_sim(settings, recording, mode)
+        world = build_sim(settings, recording, mode)
     except (OSError, ValueError) as exc:
         print(f"zensim resim: {exc}", file=sys.stderr)
         return 2
@@ -333,10 +344,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     kind = "lockstep" if applied else "real-time"
     budget = Budget(settings.budget_s)
     try:
-        result = resim_lockstep(sim, recording, applied, budget) if applied else resim_realtime(sim, recording, budget)
+        result = resim_lockstep(world, recording, applied, budget) if applied else resim_realtime(world, recording, budget)
     except OverBudget as exc:
         print(f"zensim resim: {exc}", file=sys.stderr)
         return 1
+    (sim,) = world.robots
     print(f"resim {settings.file}: {kind} recording of {recording.robot_id} ({sim.robot.name}, {sim.mode}), "
           f"{result.commands} commands, {result.compared} states compared, up to t = {result.sim_time_s:.3f} s")
     print(f"largest divergence: joint position {result.joint_rad:.6g} rad, base position {result.base_pos_m:.6g} m, "

@@ -23,6 +23,7 @@ import time
 
 import zenoh
 
+from zensim.common.follow import SimFollower
 from zensim.common.logs import RateLimitedLog
 from zensim.common.robot_info import fetch_robot
 from zensim.common.session import StartupError
@@ -36,6 +37,7 @@ from zensim.schemas import (
     JointTargets,
     Keys,
     MotorCommand,
+    SimStatus,
     bounded,
     decode_scalar,
 )
@@ -61,13 +63,9 @@ class Bridge:
         self._slew_rad_s = settings.slew_rad_s
         self._from_files = from_files
         self._lock = threading.Lock()
-        self.sim_restarted = threading.Event()
-        """Set when state/sim comes from a new sim run and the robot must be learned again."""
-        self.adopt(model)
         self._rejected_total = 0
         self._clamped_total = 0
         self._targets_codec = Codec(topics.JOINT_TARGETS.message_type())
-        self._status_codec = Codec(topics.SIM_STATUS.message_type())
         self._reject_log = RateLimitedLog(logger, 1.0)
         self._clamp_log = RateLimitedLog(logger, 1.0)
         self._status_log = RateLimitedLog(logger, 5.0)
@@ -78,20 +76,27 @@ class Bridge:
         self._reports = TypedPublisher.of(session, keys, topics.BRIDGE_REPORT)
         # Sized from the robot, like the sim's caps; the sim's own statuses are far smaller.
         self._cap_bytes = vector_cap_bytes(model.joint_names)
+        self._hold(model)
+        # A robot from local files is the user's, not the sim's: a restarted sim does not change it.
+        self.sim = SimFollower(session, keys, self._cap_bytes, self._on_status, "" if from_files else model.run_id)
+        """state/sim: `sim.restarted` is set when a new sim run's robot must be learned again."""
         self._subscribers = [
             session.declare_subscriber(keys.joint_targets, self._on_targets),
             session.declare_subscriber(keys.joint_target_any, self._on_joint),
-            session.declare_subscriber(keys.sim_status, self._on_status),
         ]
 
     def adopt(self, model: RobotModel) -> None:
-        """Take `model` as the robot (at start, and after a sim restart): hold its default pose."""
+        """Take `model` as the robot after a sim restart: hold its default pose, follow the new run."""
+        self._hold(model)
+        self.sim.adopt("" if self._from_files else model.run_id)
+
+    def _hold(self, model: RobotModel) -> None:
+        """Hold `model`'s default pose with its gains."""
         with self._lock:
             self._held = HeldTargets(model, self._slew_rad_s)
             self._gains: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
                 mode: (tuple(model.kp[mode].tolist()), tuple(model.kd[mode].tolist())) for mode in model.kp
             }
-            self.sim_restarted.clear()
 
     # --- inputs (zenoh threads) -------------------------------------------
 
@@ -119,23 +124,12 @@ class Bridge:
             verdict = self._held.apply(targets)
         self._report(key, verdict)
 
-    def _on_status(self, sample: zenoh.Sample) -> None:
-        try:
-            status = decode_input(sample, self._status_codec, self._cap_bytes)
-        except DecodeError as exc:
-            self._status_log.warning("ignoring bad SimStatus: %s", exc)
-            return
+    def _on_status(self, status: SimStatus) -> None:
+        """A status of the known sim run (SimFollower): a new episode holds the mode's default pose."""
         try:
             with self._lock:
-                if self.sim_restarted.is_set():
-                    return  # the loop is learning the new sim's robot; its statuses count after that
                 if status.episode == self._held.episode:
                     return  # the common case: nothing happened
-                model = self._held.model
-                if status.run_id != model.run_id and not self._from_files:
-                    logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
-                    self.sim_restarted.set()  # it may run another robot: the loop asks info/robot
-                    return
                 self._held.follow_sim(status.episode, status.mode)
         except UnusableRobotInfo as exc:
             self._status_log.warning("%s; keeping the current targets", exc)
@@ -180,6 +174,7 @@ class Bridge:
             self._targets.put(JointTargets(names=self._held.joint_names, q=q))
 
     def close(self) -> None:
+        self.sim.close()
         for subscriber in self._subscribers:
             subscriber.undeclare()
         for publisher in (self._motors, self._targets, self._reports):
@@ -217,7 +212,7 @@ def run(session: zenoh.Session, settings: BridgeSettings, stop: threading.Event)
     last = time.monotonic() - 1.0 / settings.rate_hz
     try:
         while not stop.is_set():
-            if bridge.sim_restarted.is_set():
+            if bridge.sim.restarted.is_set():
                 model = fetch_robot(session, keys, settings.info_timeout_s, stop, RobotModel.from_info, logger)
                 if model is None:
                     break

@@ -12,6 +12,7 @@ from __future__ import annotations
 import itertools
 import logging
 import threading
+from collections.abc import Callable
 from typing import Generic, TypeVar
 
 import zenoh
@@ -136,6 +137,34 @@ class TypedPublisher(Generic[M]):
 
     def undeclare(self) -> None:
         self._publisher.undeclare()
+
+
+class TypedSubscriber(Generic[M]):
+    """A zenoh subscriber that reads one message type: every sample size-checked, then decoded.
+
+    `on_message` gets each message that decoded; `on_refused` each sample that did not, with the reason
+    (oversize, malformed, invalid), to count and log it at a bounded rate. Both run on zenoh's threads.
+    """
+
+    def __init__(self, session: zenoh.Session, key: str, message_type: type[M], cap_bytes: int,
+                 on_message: Callable[[M], None], on_refused: Callable[[zenoh.Sample, str], None]) -> None:
+        self.key = key
+        self._codec = Codec(message_type)
+        self._cap_bytes = cap_bytes
+        self._on_message = on_message
+        self._on_refused = on_refused
+        self._subscriber = session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            message = decode_input(sample, self._codec, self._cap_bytes)
+        except DecodeError as exc:
+            self._on_refused(sample, str(exc))
+            return
+        self._on_message(message)
+
+    def undeclare(self) -> None:
+        self._subscriber.undeclare()
 
 
 def reply(query: zenoh.Query, key: str, message: Message, fmt: Format, codec: Codec | None = None) -> None:

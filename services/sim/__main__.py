@@ -1,4 +1,4 @@
-"""`zensim sim` / `python -m zensim.sim`: load settings, set up logging, build the robot, serve."""
+"""`zensim sim` / `python -m zensim.sim`: load settings, set up logging, build the world, serve."""
 
 from __future__ import annotations
 
@@ -18,21 +18,13 @@ PROG = "zensim sim"
 def main(argv: Sequence[str] | None = None) -> int:
     settings = settings_or_exit(SimSettings, argv, PROG)
     setup_logging(settings.log_level)
-    from .service import load_simulation, run  # imports mujoco: only after the settings parsed
+    from .service import load_world, run  # imports mujoco: only after the settings parsed
 
-    if settings.world:  # several robots in one world (world.py)
-        from .world import load_world, run_world
-
-        try:
-            world = load_world(settings)
-        except StartupError as exc:
-            return fail(PROG, str(exc))
-        return serve(PROG, settings, functools.partial(run_world, world=world), role="sim")
     try:
-        sim = load_simulation(settings)  # before the session: a bad robot file fails fast
+        world, world_file = load_world(settings)  # before the session: a bad robot or world file fails fast
     except StartupError as exc:
         return fail(PROG, str(exc))
-    return serve(PROG, settings, functools.partial(run, sim=sim), role="sim")
+    return serve(PROG, settings, functools.partial(run, world=world, world_file=world_file), role="sim")
 
 
 if __name__ == "__main__":

@@ -1,10 +1,10 @@
-"""The robot's physics, with no network: commands in, states out.
+"""One robot's physics, with no network: its commands, its watchdog, its own soundness and fall.
 
-`Simulation` owns one compiled robot and its MjData. It validates motor
-commands against the robot, holds the newest one and applies it at every
-step, runs the command watchdog, detects falls, and turns MuJoCo's arrays
-into wire messages. The service (service.py) only moves bytes; tests and
-benchmarks drive this class directly.
+A `Simulation` is one robot of a World (world.py: the one MjModel/MjData and the one step, for one
+robot or many). It validates motor commands against the robot, holds the newest one and gives it to
+the actuators before each step the world runs, runs the command watchdog, resets the robot's own pose,
+and says whether the robot's own state is sound and whether it fell. States are read for every robot
+at once by the world's reader (world_states.py). No network here: tests and benchmarks drive a World.
 
 Threading: `accept_command` runs on the service's command thread while the
 loop steps; the command is merged under `_lock` into a fresh set of arrays and
@@ -20,7 +20,6 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -28,23 +27,20 @@ import mujoco
 import numpy as np
 
 from zensim.robots import RobotFiles
-from zensim.robots.builder import Mode, Robot, build
+from zensim.robots.builder import Mode, ModeFigures, Robot
 from zensim.schemas import (
     SCHEMA_VERSION,
     bounded,
     short_repr,
     Gains,
-    Imu,
-    JointState,
     Keys,
     MotorCommand,
-    Odometry,
     ResetRequest,
     RobotInfo,
 )
 from zensim.schemas.messages import Terrain
 
-from .mjdata import actuator_index, actuator_values, base_tilt_rad, read_base, read_imu, reset, write_actuators
+from .mjdata import actuator_index, actuator_values, base_tilt_rad, reset, write_actuators
 
 logger = logging.getLogger(__name__)
 
@@ -132,62 +128,48 @@ class Limits:
 
 
 class Simulation:
-    """One robot in MuJoCo, driven by motor commands.
+    """One robot of a World, driven by motor commands.
 
     Args:
         files: the robot's URDF and control file.
-        mode: `floating` or `fixed`.
+        robot: the robot in the world's model.
+        data: the world's MjData (every robot of the world shares it).
         limits: bounds on commanded gains.
         watchdog_timeout_s: wall-clock silence after which the default pose is held.
-        timestep_s: physics step; None keeps the control file's.
-        shared: a robot of a world (services/sim/world.py): its Robot in the world's model, the world's
-            MjData, and the world's step (which steps every robot at once). None: a world of its own.
-        terrain: the ground (robots/terrain.py), built into the model and described in info/robot; None: flat.
+        terrain: the world's ground (robots/terrain.py), for the robot's description; None: flat.
     """
 
-    def __init__(
-        self,
-        files: RobotFiles,
-        mode: Mode,
-        limits: Limits,
-        watchdog_timeout_s: float,
-        timestep_s: float | None = None,
-        shared: tuple[Robot, mujoco.MjData, Callable[[int], None]] | None = None,
-        terrain: Terrain | None = None,
-    ) -> None:
+    def __init__(self, files: RobotFiles, robot: Robot, data: mujoco.MjData, limits: Limits,
+                 watchdog_timeout_s: float, terrain: Terrain | None = None) -> None:
         self.files = files
         self.terrain = terrain
-        self._shared = shared
         self.limits = limits
         self.watchdog_timeout_s = watchdog_timeout_s
-        self._timestep_override = timestep_s
         self._lock = threading.Lock()
         self.rejected = 0
         self.clamped = 0
         self.last_error: str | None = None
         self.resets = 0
+        self.physics_resets = 0
+        """Resets that followed broken physics."""
+        self.last_reset_reason: str | None = None
+        self.fallen_since: float | None = None
+        """Sim time the current fall began (auto_reset_on_fall), None while upright."""
         self._last_command_wall: float | None = None
         self._watchdog_on = False
         """The watchdog's verdict at the last apply_targets that checked it (or reset, or a command)."""
         self.watchdog_enabled = True
         """False under the lockstep clock: time stands still between commands, so silence is no fault."""
-        self._load(mode)
+        self.attach(robot, data)
         self.reset()
         self.resets = 0
 
     # --- model -----------------------------------------------------------
 
-    def _load(self, mode: Mode) -> None:
-        if self._shared is not None:
-            if mode != self._shared[0].mode:
-                raise CommandError(f"a robot of a world stays in the world's mode ({self._shared[0].mode}); "
-                                   "restart the world in another mode")
-            robot, self.data = self._shared[0], self._shared[1]
-        else:
-            robot = build(self.files, mode, self.terrain)
-            if self._timestep_override:
-                robot.model.opt.timestep = self._timestep_override
-            self.data = mujoco.MjData(robot.model)
+    def attach(self, robot: Robot, data: mujoco.MjData) -> None:
+        """Drive `robot` in `data` from now on (at start, and when a world of one is rebuilt in another mode);
+        reset() then puts it in its default pose."""
+        self.data = data
         self.robot = robot
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
@@ -218,28 +200,26 @@ class Simulation:
     def sim_time_s(self) -> float:
         return float(self.data.time)
 
-    def set_mode(self, mode: Mode) -> None:
-        """Rebuild the model in `mode` and reset to its default pose."""
-        if mode != self.mode:
-            self._load(mode)
-            self.reset()
+    def check_reset(self, request: ResetRequest, mode: ModeFigures | None = None) -> np.ndarray:
+        """The pose a reset asks for, checked against the robot (and the height against `mode`'s figures when
+        it switches mode): nothing changes here.
+
+        Raises:
+            CommandError: unknown joints, a wrong length, a pose far out of range, an absurd height.
+        """
+        q = self._pose_from(request)
+        self._check_height(request, self.robot.base_height_m if mode is None else mode.base_height_m)
+        return q
 
     def reset(self, request: ResetRequest | None = None) -> None:
-        """Reset to the default pose, or the pose and height in `request` (mode switch included).
+        """Reset to the default pose, or the pose and height in `request` (its mode is the world's business:
+        World.rebuild switches a world of one before this runs).
 
         Raises:
             CommandError: the request names unknown joints or has the wrong length.
         """
         request = request or ResetRequest()
-        q = self._pose_from(request)  # checked before anything changes
-        self._check_height(request)
-        if request.mode is not None and request.mode != self.mode:
-            if self._shared is not None:
-                raise CommandError(f"a robot of a world stays in the world's mode ({self.mode})")
-            other = build(self.files, request.mode, self.terrain)  # checked against the new mode before switching
-            self._check_height(request, other)
-            self._load(request.mode)
-            q = self._pose_from(request)
+        q = self.check_reset(request)  # checked before anything changes
         reset(self.robot, self.data, q, request.base_height_m)
         with self._lock:
             self._targets = MotorTargets.hold(self.robot, q)
@@ -247,6 +227,7 @@ class Simulation:
         self._watchdog_on = self.watchdog_engaged()
         self.steps = 0
         self.resets += 1
+        self.fallen_since = None
         self._apply(self._targets)
         if self.robot.slot is None:  # a robot of a world: mjdata.reset ran its own forward, the others untouched
             mujoco.mj_forward(self.robot.model, self.data)
@@ -266,11 +247,11 @@ class Simulation:
         q[idx] = wanted
         return np.clip(q, self.robot.q_min, self.robot.q_max)
 
-    def _check_height(self, request: ResetRequest, robot: Robot | None = None) -> None:
+    def _check_height(self, request: ResetRequest, spawn_height_m: float) -> None:
         """Refuse a reset height no robot stands at: buried in the floor or far up in the air."""
         if request.base_height_m is None:
             return
-        low, high = reset_height_range(robot or self.robot)
+        low, high = reset_height_range(spawn_height_m)
         if not low <= request.base_height_m <= high:
             raise CommandError(f"`base_height_m` {request.base_height_m:g} is outside [{low:.3g}, {high:.3g}] m")
 
@@ -397,48 +378,16 @@ class Simulation:
         age = self.command_age_s()
         return age is None or age > self.watchdog_timeout_s
 
-    def targets(self) -> MotorTargets:
-        """What the actuators get now: the newest command, or the safe pose under the watchdog."""
-        if self.watchdog_engaged():
-            return self._safe_targets()
-        return self._targets
-
-    def _safe_targets(self) -> MotorTargets:
-        return self._safe
-
     # --- stepping --------------------------------------------------------
 
     def _apply(self, targets: MotorTargets) -> None:
         write_actuators(self.robot, self.data, self._actuators, *targets.actuators)
         self._applied = targets
 
-    def step(self, n: int = 1) -> None:
-        """Advance `n` physics steps, applying the current targets before each.
-
-        A step runs as MuJoCo's split pair: mj_step2 (actuation, acceleration,
-        integration) then mj_step1 (positions, velocities and their sensors at
-        the new instant). So between steps `data` always describes its own
-        `data.time`: a state read now is not one step stale (a plain mj_step
-        leaves body poses and sensors at the start of the step), and it costs
-        no extra mj_forward. Only acceleration-stage values (the IMU's
-        accelerometer, qfrc_actuator) describe the step that just ended.
-
-        The actuators keep their ctrl and gains between steps, so targets are
-        written only when they changed: a new command, or the watchdog
-        engaging or letting go. That keeps the hot loop at MuJoCo's own cost.
-        """
-        if self._shared is not None:  # one robot of a world: the world steps every robot together
-            self._shared[2](n)
-            return
-        model, data = self.robot.model, self.data
-        for _ in range(n):
-            self.apply_targets()
-            mujoco.mj_step2(model, data)
-            mujoco.mj_step1(model, data)
-        self.steps += n
-
     def apply_targets(self, check_watchdog: bool = True) -> None:
-        """Give the actuators the current targets, when they changed since the last step.
+        """Give the actuators the current targets, when they changed since the last step (the world calls it
+        before each step it runs: the actuators keep their ctrl and gains between steps, so targets are
+        written only when they changed, a new command or the watchdog engaging or letting go).
 
         `check_watchdog` False keeps the watchdog's last verdict instead of reading the clock: a world
         of many robots asks it once per state period, not once per robot and step. A command accepted
@@ -446,25 +395,17 @@ class Simulation:
         """
         if check_watchdog:
             self._watchdog_on = self.watchdog_engaged()
-        targets = self._safe_targets() if self._watchdog_on else self._targets
+        targets = self._safe if self._watchdog_on else self._targets
         if targets is not self._applied:
             self._apply(targets)
 
     def broken(self) -> str | None:
-        """Why the physics state cannot be trusted any more, or None while it is sound.
+        """Why this robot's own state cannot be trusted any more, or None while it is sound.
 
-        MuJoCo's guards fire first for NaN or huge accelerations, velocities,
-        positions or controls: it then zeroes the controls or silently resets
-        mjData to the model's reference pose every step (time stuck at 0). A
-        state can also be finite and still impossible: a robot launched out
-        of the floor at 500 m/s. The service follows any of these with a real
-        reset and says why, instead of streaming a teleported robot.
+        A state can be finite and still impossible: a robot launched out of the floor at 500 m/s.
+        MuJoCo's own guards (broken_warning) are the world's, as its data is: World.broken checks both.
         """
         data, robot = self.data, self.robot
-        if robot.slot is None:  # in a world, MuJoCo's warnings are the world's (world.py checks them)
-            reason = broken_warning(data)
-            if reason:
-                return reason
         qpos, qvel = (data.qpos, data.qvel) if robot.slot is None else (data.qpos[robot.slot.qpos], data.qvel[robot.slot.dof])
         if not (np.all(np.isfinite(qpos)) and np.all(np.isfinite(qvel))):
             return "a non-finite position or velocity"
@@ -482,33 +423,9 @@ class Simulation:
 
     # --- messages --------------------------------------------------------
 
-    def joint_state(self, seq: int) -> JointState:
-        robot, data = self.robot, self.data
-        return JointState(
-            sim_time_s=float(data.time),
-            seq=seq,
-            q=data.qpos[robot.qpos_adr].tolist(),
-            dq=data.qvel[robot.dof_adr].tolist(),
-            tau=data.qfrc_actuator[robot.dof_adr].tolist(),
-        )
-
-    def odometry(self, seq: int) -> Odometry:
-        pos, quat, lin_vel, ang_vel = read_base(self.robot, self.data)
-        return Odometry(
-            sim_time_s=float(self.data.time),
-            seq=seq,
-            pos=pos.tolist(),
-            quat_wxyz=quat.tolist(),
-            lin_vel_world=lin_vel.tolist(),
-            ang_vel_body=ang_vel.tolist(),
-        )
-
-    def imu(self, seq: int) -> Imu:
-        quat, gyro, accel = read_imu(self.robot, self.data)
-        return Imu(sim_time_s=float(self.data.time), seq=seq, quat_wxyz=quat.tolist(), gyro=gyro.tolist(), accel=accel.tolist())
-
-    def robot_info(self, keys: Keys, state_rate_hz: float, status_rate_hz: float, other: dict[Mode, Robot]) -> RobotInfo:
-        """The description clients need; `other` holds the robot built in each mode (for per-mode figures)."""
+    def robot_info(self, keys: Keys, state_rate_hz: float, status_rate_hz: float,
+                   other: dict[Mode, ModeFigures]) -> RobotInfo:
+        """The description clients need; `other` holds the robot's figures in each mode."""
         robot = self.robot
         return RobotInfo(
             robot=keys.robot,
@@ -541,8 +458,7 @@ def broken_warning(data: mujoco.MjData) -> str | None:
     return None
 
 
-def reset_height_range(robot: Robot) -> tuple[float, float]:
-    """Base heights a reset may ask for in the robot's mode, m: from half the spawn height to 5 m above it."""
-    spawn = robot.base_height_m
+def reset_height_range(spawn: float) -> tuple[float, float]:
+    """Base heights a reset may ask for, m, from the mode's spawn height: from half of it to 5 m above it."""
     low = RESET_HEIGHT_MIN_FACTOR * spawn if spawn > 0 else spawn - 0.5
     return low, spawn + RESET_HEIGHT_MAX_ABOVE_M

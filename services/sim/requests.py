@@ -24,9 +24,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TypeVar
 
-import zenoh
-
 from zensim.common.logs import RateLimitedLog
+from zensim.common.queryable import TypedQuery
 from zensim.schemas import CtlReply, bounded
 
 logger = logging.getLogger("zensim.sim")
@@ -57,11 +56,10 @@ def run_guarded(action: Callable[[], T], what: str, failed: Callable[[str], T]) 
 class Request:
     """One checked ctl query, waiting for the loop thread."""
 
-    query: zenoh.Query
+    query: TypedQuery
+    """Answered (in its own format, a refusal counted) once the action ran, or when it will not run."""
     run: Callable[[], CtlReply]
     """The action; runs on the loop thread, with the physics lock held."""
-    answer: Callable[[zenoh.Query, CtlReply], None]
-    """Sends the reply (in the query's format) and counts a refusal."""
     received: float = field(default_factory=time.monotonic)
 
 
@@ -70,13 +68,15 @@ class Requests:
 
     Args:
         busy: the reply for a request that is not run (its text says why).
+        wake: set when a request is queued (the loop waits on one event for every queue it serves).
         max_pending: requests that may wait at once.
         start_timeout_s: longest wait before a request is dropped.
     """
 
-    def __init__(self, busy: Callable[[str], CtlReply], max_pending: int = MAX_PENDING,
+    def __init__(self, busy: Callable[[str], CtlReply], wake: threading.Event, max_pending: int = MAX_PENDING,
                  start_timeout_s: float = START_TIMEOUT_S) -> None:
         self._busy = busy
+        self._wake = wake
         self._queue: queue.Queue[Request] = queue.Queue(max_pending)
         self.start_timeout_s = start_timeout_s
         self.dropped = 0
@@ -87,6 +87,7 @@ class Requests:
         """From a callback: queue `request`, or answer it busy at once when too many wait."""
         try:
             self._queue.put_nowait(request)
+            self._wake.set()
         except queue.Full:
             self._not_run(request, f"busy: {self._queue.maxsize} ctl requests are waiting; nothing was done, "
                                    "send it again")
@@ -106,7 +107,7 @@ class Requests:
             self._not_run(request, f"the sim loop could not start this request within {self.start_timeout_s:g} s "
                                    f"(it waited {waited:.1f} s behind others); nothing was done")
         else:
-            self._finish(request, run(request))
+            self._finish(request, run_guarded(lambda: run(request), "a ctl request", self._busy))
         return True
 
     def empty(self) -> bool:
@@ -131,8 +132,6 @@ class Requests:
     @staticmethod
     def _finish(request: Request, message: CtlReply) -> None:
         try:
-            request.answer(request.query, message)
+            request.query.reply(message)  # the final reply: the client's get() ends now
         except Exception:  # a reply that cannot go out must not take the loop down
             failures.exception("answering a ctl request")
-        finally:
-            request.query.drop()  # the final reply: the client's get() ends now

@@ -1,6 +1,6 @@
 """Every robot's states of one instant in a world: read from MjData in one pass, put from a thread of their own.
 
-The world's loop holds the physics lock while it steps and reads. Reading is a handful of numpy
+The engine's loop holds the physics lock while it steps and reads (engine.py). Reading is a handful of numpy
 gathers for all robots at once (`StateReader.take`: a `Frame` of plain arrays, copies, so MjData may
 step on). Turning a frame into three messages per robot, encoding and putting them is Python work
 that grows with the robot count (a fifth of a 32-G1 world's loop, benchmarks/world_profile.py);
@@ -35,6 +35,8 @@ States = tuple[JointState, Odometry, Imu]
 MAX_BACKLOG = 10
 """Frames that may wait for the publisher thread (100 ms of states at 100 Hz); past it the oldest is
 dropped and counted: a late state is worth less than a current one, and memory stays bounded."""
+FEW_ROBOTS = 4
+"""Up to this many robots, a frame's body-frame angular velocities are turned row by row (_rotate_by_inverse)."""
 DRAIN_TIMEOUT_S = 1.0
 """Longest a direct put waits for the frames before it (a put never blocks that long: zenoh drops)."""
 
@@ -63,8 +65,9 @@ class StateReader:
     """Reads every robot's JointState, Odometry and Imu of one instant from the world's MjData in a few array
     operations (one gather per field for all robots, then list slices), not three per robot.
 
-    The same figures as Simulation.joint_state / odometry / imu (the body-frame angular velocity is the
-    world one turned by the base's inverse orientation, here for all robots at once)."""
+    The one state reader: the sim (a robot alone is a world of one), world/advance and `zensim resim` all
+    read states here. The body-frame angular velocity is the world one turned by the base's inverse
+    orientation (mjdata.read_base's figure), here for all robots at once."""
 
     SENSORS = ("base_pos", "base_quat", "base_linvel", "base_angvel", "imu_quat", "imu_gyro", "imu_accel")
 
@@ -101,7 +104,17 @@ class StateReader:
 
 
 def _rotate_by_inverse(quat_wxyz: np.ndarray, vec: np.ndarray) -> np.ndarray:
-    """Each row of `vec` turned by the inverse of each unit quaternion (as mju_rotVecQuat with the conjugate)."""
+    """Each row of `vec` turned by the inverse of each unit quaternion (mju_rotVecQuat with the conjugate).
+
+    A few robots: MuJoCo's own function, row by row (a robot alone: 3 us, where a dozen numpy operations
+    on 1-row arrays took 18 us, 4 % of a lockstep advance); many: numpy, for all rows at once.
+    """
+    if len(quat_wxyz) <= FEW_ROBOTS:
+        out, conj = np.empty_like(vec), np.empty(4)
+        for row, (quat, v) in enumerate(zip(quat_wxyz, vec)):
+            mujoco.mju_negQuat(conj, quat)
+            mujoco.mju_rotVecQuat(out[row], v, conj)
+        return out
     w = quat_wxyz[:, :1]
     u = -quat_wxyz[:, 1:]
     t = 2.0 * _cross(u, vec)
@@ -116,16 +129,20 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class StatePublisher:
-    """Puts the frames the loop hands over, oldest first, from a thread of its own.
+    """Puts the frames the loop hands over, oldest first, from a thread of its own (or at once).
 
     Args:
         reader: turns a frame into messages.
         put: puts one instant's messages of every robot (in the reader's robot order).
+        threaded: put from a thread of its own (a world of several robots); False: put at once, on the
+            caller's thread (a robot alone: its three messages cost less than the hand-over would add to
+            a state's latency).
     """
 
-    def __init__(self, reader: StateReader, put: Callable[[list[States]], None]) -> None:
-        self._reader = reader
+    def __init__(self, reader: StateReader, put: Callable[[list[States]], None], threaded: bool = True) -> None:
+        self.reader = reader
         self._put = put
+        self._threaded = threaded
         self._frames: deque[Frame | list[States]] = deque()
         self._busy = False
         self._closed = False
@@ -135,11 +152,15 @@ class StatePublisher:
         self._drop_log = RateLimitedLog(logger)
         self._fail_log = RateLimitedLog(logger)
         self._thread = threading.Thread(target=self._run, name="sim-states", daemon=True)
-        self._thread.start()
+        if threaded:
+            self._thread.start()
 
     def submit(self, frame: Frame | list[States]) -> None:
         """Queue a frame, or messages already built (world/advance built them for its reply); returns at
         once. The oldest is dropped when MAX_BACKLOG wait already."""
+        if not self._threaded:
+            self._put(self.reader.messages(frame) if isinstance(frame, Frame) else frame)
+            return
         with self._ready:
             if len(self._frames) >= MAX_BACKLOG:
                 self._frames.popleft()
@@ -151,6 +172,8 @@ class StatePublisher:
 
     def drain(self) -> None:
         """Wait until every frame queued so far has been put (before a state goes out by another path)."""
+        if not self._threaded:
+            return
         with self._ready:
             if not self._ready.wait_for(lambda: self._closed or not (self._frames or self._busy), DRAIN_TIMEOUT_S):
                 logger.warning("the state publisher thread did not finish within %.1f s", DRAIN_TIMEOUT_S)
@@ -166,12 +189,14 @@ class StatePublisher:
                 frame = self._frames.popleft()
                 self._busy = True
             try:
-                self._put(self._reader.messages(frame) if isinstance(frame, Frame) else frame)
+                self._put(self.reader.messages(frame) if isinstance(frame, Frame) else frame)
             except Exception:  # a failed put must not end the states of every robot
                 self._fail_log.exception("putting a world's states failed")
 
     def close(self) -> None:
         """Put what is queued, then end the thread."""
+        if not self._threaded:
+            return
         self.drain()
         with self._ready:
             self._closed = True

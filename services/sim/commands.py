@@ -1,0 +1,199 @@
+"""Every robot's motor commands, taken on one thread: the one command intake of the sim.
+
+Commands reach each robot through a small ring kept by zenoh (in Rust, robot_endpoint.py): when a flood
+outruns this thread, the oldest samples are dropped there, before they cost the GIL anything. This
+thread empties the rings and hands each robot the newest command of each source at most once every
+COMMAND_BATCH_PERIOD_S (one 2 ms physics step of the G1), shedding the older ones unread and counting
+them (`shed_commands`): latest wins at the physics step, so a command with a newer one from the same
+source behind it would be overwritten before any step saw it. A flood so costs at most one decode per
+source and take (500 a second), and a good client's command is applied within 2 steps.
+
+One thread for every robot of a world, not one per robot: 32 threads waking 100 times a second each to
+take the GIL for one command cost more CPU than the commands themselves (their waits for the GIL:
+CPython makes a waiting thread ask again every switch interval, 0.2 ms in the sim). A robot alone's
+thread sleeps in zenoh's ring until a command comes, so an idle robot's first command is taken at once.
+
+Under the lockstep clock of a robot alone every command advances, in arrival order: none is shed.
+
+A sender cannot buy more decodes by claiming more sources (zenoh's source info is what the sender says it
+is: 64 publishers of one client are 64 sources): each robot decodes at most MAX_DECODES_PER_TAKE commands
+per take, however many sources wait (`Turns`): the source served least recently first, one whose last
+command was refused after the others, the rest shed unread. So a flood costs a robot at most 2000 decodes
+a second whatever it claims, and a client's steady stream keeps its turn: with 64 flooding sources and a
+budget of 4, every source is served about 30 times a second at the least, a 100 Hz controller every time
+it sends (it waited longer than the flooders since its last turn).
+
+A command put on a wildcard (`zensim/*/cmd/motors`) reaches every robot of a world at once: it is refused,
+never applied, and shed like the rest (the newest of a take refused and counted, the older ones shed
+unread), so a wildcard flood costs each robot at most one refusal per take.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+
+import zenoh
+
+from zensim.common.logs import RateLimitedLog
+
+logger = logging.getLogger("zensim.sim")
+
+COMMAND_BATCH_PERIOD_S = 0.002
+"""Shortest wall time between two takes of commands (one 2 ms physics step of the G1).
+
+Each take decodes only the newest sample of each source and sheds the rest unread, so a flood from
+one source costs at most one decode per take (500 a second) however fast it comes, and a command
+waits at most this long plus one take's work before it is applied: within 2 physics steps. (1 ms
+takes cost the command thread ~13 % of a core under a 10 kHz flood, 2 ms ~8 %, measured side by side.)"""
+MAX_DECODES_PER_TAKE = 4
+"""Commands a robot decodes per take at most, whatever the number of sources waiting (the rest are shed)."""
+REFUSED_PENALTY_TAKES = 50
+"""A source whose command was refused waits this many takes (100 ms) behind the others for its next turn."""
+MAX_SOURCES = 1024
+"""Sources a robot remembers the turns of (the least recently seen is forgotten first)."""
+WILDCARD = "wildcard"
+"""The one 'source' of every sample put on a wildcard key (whoever sent it): refused, never applied."""
+COMMAND_POLL_S = 0.0005
+"""How often a robot alone's command thread empties zenoh's ring while it waits for the next take (5
+samples of a 10 kHz flood: few enough that the ring holds on to no receive buffers)."""
+
+
+def source_of(sample: zenoh.Sample) -> object:
+    """Who sent a sample: the publisher's id when it sets zenoh's source info, else None (one anonymous source)."""
+    info = sample.source_info
+    if info is None:
+        return None
+    source = info.source_id
+    return (str(source.zid), source.eid)
+
+
+class Turns:
+    """Whose command one robot decodes when more sources wait than its budget (pure: no zenoh, no clock).
+
+    A source's turn is the take from which it may be served again: first seen, that take; served, the
+    next take; refused, REFUSED_PENALTY_TAKES later. The earliest turns go first (the source that waited
+    longest); equal turns in arrival order. A fresh source so never goes before one that waited longer.
+    """
+
+    def __init__(self, budget: int = MAX_DECODES_PER_TAKE) -> None:
+        self.budget = budget
+        self.take = 0
+        self._turn: dict[object, int] = {}
+
+    def choose(self, sources: Sequence[object]) -> tuple[list[int], list[int]]:
+        """At the start of a take: the positions in `sources` (arrival order) to decode, and those to shed."""
+        self.take += 1
+        if len(sources) <= self.budget:
+            return list(range(len(sources))), []
+        for source in sources:
+            if source not in self._turn:
+                self._remember(source, self.take)
+        order = sorted(range(len(sources)), key=lambda i: self._turn[sources[i]])  # stable: arrival order
+        return order[:self.budget], order[self.budget:]
+
+    def served(self, source: object, accepted: bool) -> None:
+        """A source's command was decoded: accepted (its next turn is the next take) or refused (later)."""
+        self._remember(source, self.take + (1 if accepted else REFUSED_PENALTY_TAKES))
+
+    def _remember(self, source: object, turn: int) -> None:
+        self._turn.pop(source, None)  # re-inserted last: the dict's order is the order sources were last seen
+        self._turn[source] = turn
+        if len(self._turn) > MAX_SOURCES:
+            del self._turn[next(iter(self._turn))]
+
+
+class CommandIntake:
+    """Takes every robot's command samples on one thread, until closed.
+
+    Args:
+        rings: each robot's ring (the handler of its cmd/motors subscriber), in order.
+        keys: each robot's cmd/motors key: a sample put on any other key expression (a wildcard) is refused.
+        take: decodes, checks and applies one sample of robot `index` (on this thread); False when refused.
+        refuse: refuses one sample of robot `index` put on a wildcard (counted, logged at a bounded rate).
+        shed: counts one sample of robot `index` shed unread (this thread is the counter's one writer).
+        every_sample: take every sample in arrival order, shedding none (a robot alone under lockstep).
+    """
+
+    def __init__(self, rings: Sequence[zenoh.handlers.Handler[zenoh.Sample]], keys: Sequence[str],
+                 take: Callable[[int, zenoh.Sample], bool], refuse: Callable[[int, zenoh.Sample], None],
+                 shed: Callable[[int], None], every_sample: bool = False) -> None:
+        self._rings = tuple(rings)
+        self._keys = tuple(keys)
+        self._take = take
+        self._refuse = refuse
+        self._shed = shed
+        self._every_sample = every_sample
+        self._turns = [Turns() for _ in self._rings]
+        self._stop = threading.Event()
+        self._fail_log = RateLimitedLog(logger)
+        self._thread = threading.Thread(target=self._run, name="sim-commands", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        # recv() on the handler, not the subscriber: undeclaring a subscriber that another thread is
+        # blocked in is refused ("Already borrowed"); the handler's recv just ends with ZError.
+        # Samples leave zenoh's ring at once (a sample kept there keeps its receive buffer alive: the RSS
+        # grew by 20 MB under a flood when the ring was left to fill between takes); only the newest of
+        # each source waits here, for the next take.
+        pending: dict[tuple[int, object], zenoh.Sample] = {}
+        alone = len(self._rings) == 1
+        wait_s = COMMAND_POLL_S if alone else COMMAND_BATCH_PERIOD_S
+        next_take = 0.0
+        while not self._stop.is_set():
+            try:
+                for index, (ring, own_key) in enumerate(zip(self._rings, self._keys)):
+                    # A robot alone sleeps in its ring while nothing waits here: its first command comes at once.
+                    sample = ring.recv() if alone and not pending else ring.try_recv()
+                    while sample is not None:
+                        exact = str(sample.key_expr) == own_key
+                        if self._every_sample:
+                            self._apply(index, sample, exact)
+                        else:
+                            key = (index, source_of(sample) if exact else WILDCARD)
+                            if pending.pop(key, None) is not None:  # re-inserted: keeps arrival order
+                                self._shed(index)
+                            pending[key] = sample
+                        sample = ring.try_recv()
+            except zenoh.ZError:  # undeclared at shutdown
+                return
+            if alone and not pending:
+                continue
+            now = time.monotonic()
+            if now < next_take or not pending:
+                self._stop.wait(min(next_take - now, wait_s) if pending else wait_s)
+                continue
+            next_take = max(next_take + COMMAND_BATCH_PERIOD_S, now) if not alone else now + COMMAND_BATCH_PERIOD_S
+            waiting: dict[int, list[tuple[object, zenoh.Sample]]] = defaultdict(list)
+            for (index, source), sample in pending.items():
+                waiting[index].append((source, sample))
+            pending.clear()
+            for index, samples in waiting.items():
+                turns = self._turns[index]
+                chosen, shed = turns.choose([source for source, _ in samples])
+                for _ in shed:
+                    self._shed(index)
+                for position in chosen:
+                    source, sample = samples[position]
+                    turns.served(source, self._apply(index, sample, source != WILDCARD))
+
+    def _apply(self, index: int, sample: zenoh.Sample, exact: bool) -> bool:
+        """Take (or, put on a wildcard, refuse) one sample; True when it was accepted."""
+        try:
+            if exact:
+                return self._take(index, sample)
+            self._refuse(index, sample)
+            return False
+        except Exception:  # one robot's failure must not stop every robot's commands
+            self._fail_log.exception("taking a command failed")
+            return False
+
+    def close(self) -> None:
+        """End the thread (the rings' subscribers are undeclared after: a robot alone's recv ends then)."""
+        self._stop.set()
+
+    def join(self) -> None:
+        self._thread.join(1.0)
