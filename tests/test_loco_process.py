@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
 
 import msgspec
 import pytest
@@ -104,8 +105,10 @@ CLIENT = textwrap.dedent("""
     conf.insert_json5("scouting/multicast/enabled", "false")
     with zenoh.open(conf) as session:
         print("up", flush=True)
-        while True:  # a teleop client: the same command ten times a second, default timeout (0.5 s)
-            session.put(sys.argv[2], json.dumps({"vx": 0.3}))
+        while True:  # a teleop client: the same command ten times a second, each good for 2 s of sim time
+            # (lockstep runs several times faster than the wall clock: with the default 0.5 s a command could
+            # lapse between two puts, and the test would not see it in force)
+            session.put(sys.argv[2], json.dumps({"vx": 0.3, "timeout_s": 2.0}))
             time.sleep(0.1)
 """)
 
@@ -121,11 +124,12 @@ def test_the_velocity_timeout_stops_a_robot_whose_client_died(walker, router_end
         client.send_signal(signal.SIGKILL)  # died: no last "stop" ever comes
         client.wait(10)
         client.stdout.close()
-    received = walker.loco_status.wait(what="a status").velocity_received
-    assert received > 0
     stopped = walker.loco_status.wait(lambda s: s.commanded == (0.0, 0.0, 0.0) and not s.stepping, 60,
                                       "the robot to stop after its client died")
-    assert stopped.velocity_received == received  # nothing came after the client died: the timeout stopped it
+    assert stopped.velocity_received > 0
+    # Nothing came after the client died: the timeout stopped it (a later status counts no more commands).
+    later_status = walker.loco_status.wait(lambda s: s.seq >= stopped.seq + 2, 30, "two more statuses")
+    assert later_status.velocity_received == stopped.velocity_received and later_status.commanded == (0.0, 0.0, 0.0)
     settled = walker.run_until(walker.now() + 1.0)
     later = walker.run_until(settled.sim_time_s + 2.0)
     assert math.dist(settled.pos[:2], later.pos[:2]) < 0.02 and not walker.fell()
@@ -161,9 +165,18 @@ def test_bad_velocity_commands_and_requests_are_refused_counted_and_the_robot_st
     flood_start = walker.loco_status.wait(what="a status")
     for _ in range(20_000):
         session.put(keys.velocity, b'{"vx": 0.0}')
-    flooded = walker.loco_status.wait(lambda s: s.velocity_received >= flood_start.velocity_received + 20_000, 60,
-                                      "the flood read")
-    assert flooded.velocity_shed > flood_start.velocity_shed + 15_000, flooded
+    # Zenoh itself drops some of a burst on its way (puts are best effort): wait until what arrived is read,
+    # then most of it must have been shed, not run one by one.
+    last = [flood_start.velocity_received, time.monotonic()]
+
+    def settled(s: LocoStatus) -> bool:
+        if s.velocity_received != last[0]:
+            last[:] = [s.velocity_received, time.monotonic()]
+        return s.velocity_received > flood_start.velocity_received + 1000 and time.monotonic() - last[1] > 1.0
+
+    flooded = walker.loco_status.wait(settled, 60, "the flood read")
+    arrived = flooded.velocity_received - flood_start.velocity_received
+    assert flooded.velocity_shed - flood_start.velocity_shed > 0.75 * arrived, (arrived, flooded)
     later = walker.run_until(walker.now() + 2.0)
     assert later.pos[2] > 0.7 and not walker.fell()
     final = walker.loco_status.wait(lambda s: s.sim_time_s >= later.sim_time_s - 0.5, 30, "a newer status")

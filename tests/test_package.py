@@ -23,7 +23,7 @@ WHEEL_MAX_BYTES = 3_000_000
 def test_the_wheel_ships_every_file_the_bundled_g1_names(tmp_path: Path) -> None:
     source = tmp_path / "src"
     shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(
-        ".git", ".venv", "__pycache__", "build", "dist", "*.egg-info", "out", ".pytest_cache"))
+        ".git", ".venv*", ".typecheck", "__pycache__", "build", "dist", "*.egg-info", "out", ".pytest_cache"))
     subprocess.run([sys.executable, "-m", "pip", "wheel", ".", "--no-deps", "-q", "--disable-pip-version-check",
                     "-w", str(tmp_path / "dist")], cwd=source, check=True, timeout=600,
                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT)

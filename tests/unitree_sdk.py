@@ -66,9 +66,17 @@ def sdk_crc(packed: bytes) -> int:
     return crc
 
 
+_DOMAINS_TAKEN: set[int] = set()
+
+
 def unused_domain_id() -> int:
-    """A DDS domain for one test, so parallel runs on this host never see each other's samples."""
-    return random.randint(100, 230)
+    """A DDS domain for one test, so parallel runs on this host never see each other's samples: random, and
+    never one this process took before (Cyclone refuses a second Domain with an id the process still holds,
+    PRECONDITION_NOT_MET, and the test process keeps its DDS clients until the session's end)."""
+    free = [domain_id for domain_id in range(100, 231) if domain_id not in _DOMAINS_TAKEN]
+    domain_id = random.choice(free)
+    _DOMAINS_TAKEN.add(domain_id)
+    return domain_id
 
 
 def low_cmd_crc(cmd: LowCmd_) -> int:

@@ -1,1 +1,0 @@
-/work/main/services/bridge/__main__.py

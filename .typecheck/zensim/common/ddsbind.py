@@ -1,1 +1,0 @@
-/work/main/services/common/ddsbind.py

@@ -1,1 +1,0 @@
-/work/main/services/common/ros_rules.py

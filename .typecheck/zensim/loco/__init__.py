@@ -1,1 +1,0 @@
-/work/main/services/loco/__init__.py

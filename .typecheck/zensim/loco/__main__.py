@@ -1,1 +1,0 @@
-/work/main/services/loco/__main__.py

@@ -1,1 +1,0 @@
-/work/main/robots/mesh_files.py

@@ -1,1 +1,0 @@
-/work/main/services/ros1/service.py

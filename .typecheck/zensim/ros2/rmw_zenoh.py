@@ -1,1 +1,0 @@
-/work/main/services/ros2/rmw_zenoh.py

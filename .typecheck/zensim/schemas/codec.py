@@ -1,1 +1,0 @@
-/work/main/schemas/codec.py

@@ -1,1 +1,0 @@
-/work/main/schemas/topics.py

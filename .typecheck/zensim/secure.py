@@ -1,1 +1,0 @@
-/work/main/zensim/secure.py

@@ -1,1 +1,0 @@
-/work/main/services/sim/__main__.py

@@ -1,1 +1,0 @@
-/work/main/services/sim/lockstep.py

@@ -1,1 +1,0 @@
-/work/main/services/unitree/__init__.py

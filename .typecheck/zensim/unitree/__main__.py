@@ -1,1 +1,0 @@
-/work/main/services/unitree/__main__.py

@@ -1,1 +1,0 @@
-/work/main/services/viz/__init__.py

@@ -1,1 +1,0 @@
-/work/main/services/viz/feed.py
