@@ -15,12 +15,22 @@ process, each aiming at `--rate-hz` samples per second on cmd/motors:
     malformed   random bytes (msgpack and JSON-looking garbage)
     oversize    a 64 KiB payload (over the G1's cap of about 20 KiB)
     nested      deep nesting and invalid UTF-8, under the cap (the costly decode failures)
+    forged-copy malformed's garbage, each sample claiming the good client's own source (zenoh source info:
+                the flooder reads the good client's source id off one of its samples, as any
+                subscriber can, and puts its own samples with it)
+    forged-many malformed's garbage, spread over 64 source ids of the flooder's making (64 publishers'
+                ids, one per sample in turn, each claimed in zenoh source info)
+
+(issue 27: a flood must not shed a good client's commands, whatever source info either claims; the
+garbage floods leave the good client the only one whose commands apply, so the robot's command age
+is that client's.)
 
 Reported for each phase: worst 1 s window RTF (from state/sim), state/joints rate and its worst
-1 s window, the good client's command -> state p50/p99, the states' delivery lag p50/p99 (arrival
-wall time minus sim time, less the phase's smallest such offset: how late a state leaves and
-arrives against the sim clock; at rtf 1 that clock runs with the wall), the watchdog flag (never
-engaged?), commands rejected and shed, and the RSS of the sim and the router before the flood, 10 s
+1 s window, the good client's command -> state p50/p99, the command age p50/p99 (state/sim's
+`command_age_s`: time since the last command the sim applied, whoever sent it), the states'
+delivery lag p50/p99 (arrival wall time minus sim time, less the phase's smallest such offset: how
+late a state leaves and arrives against the sim clock; at rtf 1 that clock runs with the wall), the
+watchdog flag (never engaged?), commands rejected and shed, and the RSS of the sim and the router before the flood, 10 s
 into it and at its end. Each flooder prints the rate it reached. The flooders run niced (19) so that
 what is measured is the sim's isolation, not the scheduler's share for busy processes: say so with
 the figures, and how loaded the machine was.
@@ -57,6 +67,8 @@ elif kind == "oversize":
     payloads = [b'{"q": [0.1], "names": ["' + b"x" * 65536 + b'"]}']
 elif kind == "nested":
     payloads = [b'{"q": [0.1], "x": ' + b"[" * 3000 + b"]" * 3000 + b"}", b'{"names": ["a\xff\xfe"], "q": [0.1]}']
+elif kind in ("forged-copy", "forged-many"):  # malformed's garbage, under forged source info
+    payloads = [bytes(rng.randrange(256) for _ in range(rng.randrange(1, 200))) for _ in range(500)]
 else:
     payloads = [json.dumps({"names": list(pose), "q": list(pose.values())}).encode()]
 conf = zenoh.Config()
@@ -65,6 +77,21 @@ conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
 conf.insert_json5("scouting/multicast/enabled", "false")
 with zenoh.open(conf) as session:
     pub = session.declare_publisher(key)
+    claims = [None]  # the source ids claimed in turn (None: the publisher's own, as zenoh sets none)
+    if kind == "forged-copy":  # the good client's id, read off one of its samples
+        seen = []
+        sub = session.declare_subscriber(
+            key, lambda s: s.source_info is not None and seen.append(s.source_info.source_id))
+        deadline = time.monotonic() + 10.0
+        while not seen and time.monotonic() < deadline:
+            time.sleep(0.01)
+        sub.undeclare()
+        if not seen:
+            sys.exit("forged-copy: no sample with source info from the good client in 10 s")
+        claims = [seen[0]]
+    elif kind == "forged-many":
+        extra = [session.declare_publisher(key) for _ in range(64)]
+        claims = [p.id for p in extra]
     sent, start, period = 0, time.perf_counter(), 1.0 / rate
     while True:
         now = time.perf_counter()
@@ -74,7 +101,11 @@ with zenoh.open(conf) as session:
         if due > now:
             time.sleep(min(due - now, 0.001))
             continue
-        pub.put(payloads[sent % len(payloads)])
+        claim = claims[sent % len(claims)]
+        if claim is None:
+            pub.put(payloads[sent % len(payloads)])
+        else:
+            pub.put(payloads[sent % len(payloads)], source_info=zenoh.SourceInfo(claim, sent + 1))
         sent += 1
     print(json.dumps({"kind": kind, "sent": sent, "rate_hz": sent / (time.perf_counter() - start)}), flush=True)
 """
@@ -142,6 +173,8 @@ class Watch:
             "shed": statuses[-1][1].shed_commands - statuses[0][1].shed_commands if statuses else 0,
             "lag_s": self.delivery_lag_s(start, end),
             "physics_resets": statuses[-1][1].physics_resets if statuses else 0,
+            "command_age_s": np.array([s.command_age_s for _, s in statuses if s.command_age_s is not None]
+                                      or [float("nan")]),
         }
 
 
@@ -151,7 +184,8 @@ def main() -> int:
     parser.add_argument("--rate-hz", type=float, default=10_000.0, help="samples per second per flooder")
     parser.add_argument("--trials", type=int, default=150, help="latency trials per phase")
     parser.add_argument("--kinds", default="valid",
-                        help="flooders, comma-separated: valid, malformed, oversize, nested (default: valid)")
+                        help="flooders, comma-separated: valid, malformed, oversize, nested, forged-copy, forged-many "
+                             "(default: valid)")
     parser.add_argument("--state-rate-hz", default="500")
     parser.add_argument("--no-nice", action="store_true", help="run the flooders at normal priority")
     parser.add_argument("--pin", action="store_true",
@@ -252,12 +286,14 @@ def main() -> int:
     for rate in flood_rates:
         print("  ", rate)
     print(f"\n{'phase':<7} {'worst 1 s RTF':>14} {'states/s':>9} {'worst 1 s':>9} {'cmd p50 ms':>10} {'cmd p99 ms':>10} "
-          f"{'lag p50 ms':>10} {'lag p99 ms':>10} {'watchdog':>8} {'rejected':>9} {'shed':>9} {'phys resets':>11}")
+          f"{'lag p50 ms':>10} {'lag p99 ms':>10} {'age p50 ms':>10} {'age p99 ms':>10} {'watchdog':>8} {'rejected':>9} "
+          f"{'shed':>9} {'phys resets':>11}")
     for phase, r in results.items():
-        ms, lag = np.array(r["latencies"]) * 1e3, r["lag_s"] * 1e3
+        ms, lag, age = np.array(r["latencies"]) * 1e3, r["lag_s"] * 1e3, r["command_age_s"] * 1e3
         print(f"{phase:<7} {r['worst_1s_rtf']:>14.4f} {r['state_rate_hz']:>9.1f} {r['worst_1s_state_rate_hz']:>9d} "
               f"{np.percentile(ms, 50):>10.2f} {np.percentile(ms, 99):>10.2f} {np.percentile(lag, 50):>10.2f} "
-              f"{np.percentile(lag, 99):>10.2f} {str(r['watchdog_engaged']):>8} {r['rejected']:>9d} {r['shed']:>9d} "
+              f"{np.percentile(lag, 99):>10.2f} {np.percentile(age, 50):>10.2f} {np.percentile(age, 99):>10.2f} "
+              f"{str(r['watchdog_engaged']):>8} {r['rejected']:>9d} {r['shed']:>9d} "
               f"{r['physics_resets']:>11d}")
     flood = results.get("flood", {})
     if flood.get("rss_mb_at_10s"):
@@ -268,7 +304,8 @@ def main() -> int:
     if "idle" in results and "flood" in results:
         idle, flood = results["idle"], results["flood"]
         for what, a, b in (("command -> state", np.array(idle["latencies"]), np.array(flood["latencies"])),
-                           ("state delivery lag", idle["lag_s"], flood["lag_s"])):
+                           ("state delivery lag", idle["lag_s"], flood["lag_s"]),
+                           ("command age", idle["command_age_s"], flood["command_age_s"])):
             print(f"{what}, flood / idle: p50 {np.percentile(b, 50) / np.percentile(a, 50):.2f}x, "
                   f"p99 {np.percentile(b, 99) / np.percentile(a, 99):.2f}x")
     print(f"load average while it ran: {os.getloadavg()}")
