@@ -209,7 +209,9 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         stack.odom.keep_history = True
         loco.call("Move", 0.3, 0, 0, True)  # continous_move: duration 864000 s
         stack.run_for(0.5)
-        assert loco.call("odommodestate")["mode"] == 3  # walking
+        # The newest SportModeState_ the SDK holds may predate the Move under lockstep (sim time outruns the
+        # wall clock while a sample travels): ask again until one says walking.
+        wait_for(lambda: loco.call("odommodestate")["mode"] == 3, 10, "SportModeState_ to say walking", 0.02)
         walked = stack.run_until(start.sim_time_s + 10.0)
         loco.call("StopMove")
         forward, lateral = walked.pos[0] - start.pos[0], walked.pos[1] - start.pos[1]
@@ -239,7 +241,7 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         later = stack.run_for(3.0)
         drift = math.dist(settled.pos[:2], later.pos[:2])
         assert drift < 0.25, (settled.pos, later.pos)
-        assert loco.call("odommodestate")["mode"] == 1  # standing
+        wait_for(lambda: loco.call("odommodestate")["mode"] == 1, 10, "SportModeState_ to say standing", 0.02)
         # Turns in place: 0.3 rad/s for at most 5 s.
         before_turn = stack.odom.value
         loco.call("Move", 0, 0, 0.3, True)
@@ -338,9 +340,9 @@ def test_sdk_arm7_example_moves_the_arms_over_the_standing_robot(lockstep_stack)
     print(f"largest change of an arm joint between consecutive states: {largest[0]:.4f} rad at {largest[1]:.2f} s; "
           f"during and after the release: {released:.4f} rad; arm joint speeds at most {before:.3f} rad/s before "
           f"the release, {during:.3f} during, {after:.3f} after")
-    # The arms move a little all along (the policy balances by stepping in place): a jump at the release
-    # would show as speeds well above those of the seconds before it.
-    assert released < 0.02 and max(during, after) < 1.5 * before + 0.1, (released, before, during, after)
+    # The arms move a little all along (the policy balances by stepping in place, more on a loaded machine):
+    # a jump at the release (weight 1 -> 0 at once) shows as arm speeds of 1 rad/s and more.
+    assert released < 0.02 and max(during, after) < 2 * before + 0.3, (released, before, during, after)
 
 
 def test_sdk_loco_client_example_through_its_stdin(stack):
@@ -577,9 +579,12 @@ def test_one_absurd_arm_sdk_command_is_refused_alone_and_the_walk_goes_on(lockst
         assert walked.pos[2] > 0.6 and not stack.fell_since(first_status), walked.pos
         sim_after = stack.status.wait(lambda s: s.sim_time_s > walked.sim_time_s, 20, "a newer sim status")
         assert sim_after.rejected_commands == sim_before.rejected_commands  # nothing poisoned reached the sim
-        after = stack.unitree.value
+        # The walking controller's refusals reach the adapter's status with the controller's next state:
+        # wait for the counts to agree (none of the absurd commands was applied).
+        applied_before = before.arm_sdk_received - before.arm_sdk_rejected
+        after = stack.unitree.wait(lambda u: u.arm_sdk_received - u.arm_sdk_rejected == applied_before, 10,
+                                   f"every absurd arm_sdk command counted as refused (before: {before})")
         assert after.arm_sdk_rejected - before.arm_sdk_rejected >= 2  # refused, counted
-        assert after.arm_sdk_received - after.arm_sdk_rejected == before.arm_sdk_received - before.arm_sdk_rejected
         loco.call("StopMove")
     finally:
         loco.close()
