@@ -5,6 +5,9 @@ gains and weights, the ramps that stand the robot up and sit it down, the damp g
 limits. The numbers are the robot's, not the code's: a robot folder without a walking.toml has no
 walking controller. Joint groups are glob patterns over joint names (first match wins), as in
 control.toml.
+
+What the robot's control.toml already says is read from there, not copied: the squat the ramps go to is
+the sim's spawn pose (`[pose]`), and a joint no ramp gain group matches ramps with the floating mode's gains.
 """
 
 from __future__ import annotations
@@ -17,8 +20,8 @@ from typing import Annotated, Final
 import msgspec
 import numpy as np
 
-from . import BUNDLED_DIR, bundled_robots
-from .control import first_match
+from . import BUNDLED_DIR, CONTROL_FILE, bundled_robots
+from .control import ControlConfigError, first_match, load_control
 
 WALKING_FILE: Final = "walking.toml"
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
@@ -86,10 +89,8 @@ class RampConfig(_Strict, frozen=True):
     """Sim time from wherever the robot is to the squat (the first leg of a stand-up), s."""
     stand_up_s: Positive
     """Sim time from the squat to the stance (or from anywhere to the squat), s."""
-    squat: dict[str, float]
-    """The squat pose by glob pattern, rad; unlisted joints 0."""
-    gains: list[GainGroup]
-    """Gains while ramping and holding a pose; first match wins."""
+    gains: list[GainGroup] = []
+    """Gains while ramping and holding a pose; first match wins, then control.toml's floating gains."""
 
 
 class WalkingFile(_Strict, frozen=True):
@@ -151,7 +152,7 @@ class Walking:
 
 
 def load_walking(path: Path) -> Walking:
-    """Read and resolve a walking.toml.
+    """Read and resolve a walking.toml (and the control.toml beside it, for the squat and the ramp gains).
 
     Raises:
         WalkingConfigError: unreadable, not TOML, an unknown field or wrong type, or inconsistent
@@ -159,8 +160,9 @@ def load_walking(path: Path) -> Walking:
     """
     try:
         raw = msgspec.toml.decode(Path(path).read_bytes(), type=WalkingFile)
-    except OSError as exc:
-        raise WalkingConfigError(f"cannot read {path}: {exc}") from exc
+        control = load_control(Path(path).parent / CONTROL_FILE)
+    except (OSError, ControlConfigError) as exc:
+        raise WalkingConfigError(f"cannot read {path} and its {CONTROL_FILE}: {exc}") from exc
     except (msgspec.ValidationError, msgspec.DecodeError) as exc:
         raise WalkingConfigError(f"{path}: {exc}") from exc
     joints = tuple(raw.joints)
@@ -174,7 +176,7 @@ def load_walking(path: Path) -> Walking:
     legs = np.array([joints.index(j) for j in p.joints], int)
     stand = np.zeros(n)
     stand[legs] = p.default_q
-    squat = np.array([first_match(j, [([k], v) for k, v in raw.ramp.squat.items()]) or 0.0 for j in joints])
+    squat = np.array([first_match(j, [([k], v) for k, v in control.pose.items()]) or 0.0 for j in joints])
 
     def per_joint(groups: list, field: str) -> np.ndarray:
         values = [first_match(j, [(g.joints, getattr(g, field)) for g in groups]) for j in joints]
@@ -182,6 +184,8 @@ def load_walking(path: Path) -> Walking:
         if unset:
             raise WalkingConfigError(f"{path}: no {field} for {unset}")
         return np.array(values, float)
+
+    ramp_gains = raw.ramp.gains + list(control.floating.gains)
 
     walk_kp = np.full(n, raw.walk.upper_kp)
     walk_kd = np.full(n, raw.walk.upper_kd)
@@ -192,7 +196,7 @@ def load_walking(path: Path) -> Walking:
         joints=joints, legs=legs, leg_default_q=np.array(p.default_q, float), leg_kp=np.array(p.kp, float),
         leg_kd=np.array(p.kd, float), period_s=p.period_s, weights=Path(path).parent / p.weights,
         stand_q=stand, squat_q=squat, walk_kp=walk_kp, walk_kd=walk_kd,
-        ramp_kp=per_joint(raw.ramp.gains, "kp"), ramp_kd=per_joint(raw.ramp.gains, "kd"),
+        ramp_kp=per_joint(ramp_gains, "kp"), ramp_kd=per_joint(ramp_gains, "kd"),
         damp_kd=per_joint(raw.damp, "kd"), arms=arms, arm_keep_gains=keep,
         max_velocity=np.array(raw.walk.max_velocity, float), heading_kp=raw.walk.heading_kp,
         heading_max_wz=raw.walk.heading_max_wz, settle_s=raw.walk.settle_s, plant_s=raw.walk.plant_s,

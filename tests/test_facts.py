@@ -67,3 +67,25 @@ def test_modes_and_the_router_port_have_one_home() -> None:
     result = subprocess.run([sys.executable, "-m", "zensim", "robot", "build", "--help"], capture_output=True,
                             text=True, timeout=60, cwd=REPO)
     assert "{floating,fixed}" in result.stdout, result.stdout + result.stderr
+
+
+def test_the_walking_controller_takes_the_squat_and_leg_gains_from_the_robots_control_file(tmp_path) -> None:
+    """walking.toml does not copy control.toml: a robot folder whose spawn squat or floating leg gains change
+    walks with the new ones (the controller's stand-up ramps to the pose the sim spawns in)."""
+    import numpy as np
+
+    from zensim.robots import BUNDLED_DIR
+    from zensim.robots.walking import load_walking
+
+    bundled = BUNDLED_DIR / "unitree_g1"
+    walking = load_walking(bundled / "walking.toml")
+    knee = walking.joints.index("left_knee_joint")
+    assert walking.squat_q[knee] == 0.9 and walking.ramp_kp[knee] == 1000.0  # control.toml's [pose], [floating]
+    (tmp_path / "walking.toml").write_text((bundled / "walking.toml").read_text())
+    control = (bundled / "control.toml").read_text()
+    assert '"*_knee_joint" = 0.9' in control and "kp = 1000.0" in control
+    (tmp_path / "control.toml").write_text(control.replace('"*_knee_joint" = 0.9', '"*_knee_joint" = 0.7')
+                                           .replace("kp = 1000.0", "kp = 800.0", 1))
+    changed = load_walking(tmp_path / "walking.toml")
+    assert changed.squat_q[knee] == 0.7 and changed.ramp_kp[knee] == 800.0
+    assert np.array_equal(changed.walk_kp, walking.walk_kp)  # the policy's own gains stay the policy's

@@ -149,3 +149,36 @@ def test_two_sims_fed_the_same_commands_produce_bit_identical_states(start_servi
     # ... and the run did something: the robot moved.
     first, last = json.loads(runs[0][0]), json.loads(runs[0][-1])
     assert first[0]["q"] != last[0]["q"]
+
+
+def test_a_lockstep_sim_stopped_mid_stream_exits_cleanly(start_service, zsession, robot_id) -> None:
+    """Under lockstep the command thread advances and publishes: stopping the sim while a client streams
+    commands must end that thread before the publishers go (it exited 1 with "Already borrowed" and
+    logged "taking a command failed: session closed", seen under `zensim up --unitree` at Ctrl-C)."""
+    import threading
+
+    keys = Keys(robot_id)
+    joints = Latest(zsession, keys.joints, JointState)
+    for attempt in range(5):
+        sim = start_service("sim", "--clock", "lockstep", "--lockstep-steps", "1")
+        wait_alive(zsession, keys)
+        info = robot_info(zsession, keys)
+        command = json.dumps({"q": info["default_q"][info["mode"]]})
+        streaming = threading.Event()
+        streaming.set()
+
+        def stream() -> None:
+            while streaming.is_set():
+                zsession.put(keys.motors, command)
+
+        streamer = threading.Thread(target=stream, daemon=True)
+        streamer.start()
+        try:
+            before = joints.count
+            joints.wait(lambda m, b=before: joints.count > b + 200, 30, "states from the streamed commands")
+            code = sim.stop(10.0)
+        finally:
+            streaming.clear()
+            streamer.join(5)
+        log = sim.log()
+        assert code == 0 and "Traceback" not in log and "failed" not in log, f"stop {attempt}: exit {code}\n{log[-3000:]}"

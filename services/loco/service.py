@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 import zenoh
 
+from zensim.common.follow import SimRun
 from zensim.common.logs import RateLimitedLog
 from zensim.common.robot_info import fetch_robot
 from zensim.common.session import StartupError
@@ -85,8 +86,8 @@ class LocoService:
         self._velocity: zenoh.Sample | None = None
         self._seq = 0
         self._last_request_status = 0.0
-        self.run_id = robot.info.run_id
-        self.sim_restarted = threading.Event()
+        self.sim_run = SimRun(robot.info.run_id)
+        """state/sim's run: `sim_run.restarted` is set when a restarted sim's robot must be learned again."""
         self.counts = {"velocity_received": 0, "velocity_refused": 0, "velocity_shed": 0, "requests": 0,
                        "requests_refused": 0, "arm_received": 0, "arm_refused": 0, "commands_sent": 0}
         self.last_error: str | None = None
@@ -151,9 +152,8 @@ class LocoService:
 
     def _on_sim_status(self, sample: zenoh.Sample) -> None:
         status = self._decode_state(sample, "sim")
-        if status is not None and status.run_id and status.run_id != self.run_id and not self.sim_restarted.is_set():
-            logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
-            self.sim_restarted.set()
+        if status is not None:
+            self.sim_run.follows(status)  # sets sim_run.restarted on a new run
 
     def _tick(self, force: bool) -> MotorCommand | None:
         """The controller's command for the newest state, if one is due (under `_lock`)."""
@@ -375,7 +375,7 @@ def run(session: zenoh.Session, settings: LocoSettings, stop: threading.Event) -
     period_s = 1.0 / settings.status_rate_hz
     try:
         while not stop.wait(period_s):
-            if service.sim_restarted.is_set():
+            if service.sim_run.restarted.is_set():
                 info = fetch_robot(session, keys, settings.info_timeout_s, stop, lambda i: i, logger)
                 if info is None:
                     break
@@ -383,9 +383,8 @@ def run(session: zenoh.Session, settings: LocoSettings, stop: threading.Event) -
                     logger.error("the restarted sim runs another robot (%s): exiting", info.model)
                     return 1
                 with service._lock:
-                    service.run_id = info.run_id
                     service.controller.release()
-                    service.sim_restarted.clear()
+                    service.sim_run.adopt(info.run_id)
             service.publish_status()
     finally:
         token.undeclare()

@@ -42,6 +42,7 @@ from sensor_msgs.msg import JointState as RosJointState
 from std_msgs.msg import Float64
 from tf2_msgs.msg import TFMessage
 
+from zensim.common.follow import SimRun
 from zensim.common.edges import check_edge, is_loopback
 from zensim.common.logs import FORMAT, RateLimitedLog
 from zensim.common.robot_info import fetch_robot
@@ -111,8 +112,8 @@ class Gateway:
         self.counters = Counters()
         self.refusals = Refusals(logger, "ROS message")
         self._state_log = RateLimitedLog(logger, 5.0)
-        self.sim_restarted = threading.Event()
-        """Set when state/sim comes from another sim run: the main loop learns the robot again."""
+        self.sim_run = SimRun()
+        """state/sim's run: `sim_run.restarted` is set when another sim run's robot must be learned again."""
         self._robot: RobotJoints | None = None
         self._episode = ""
         self._cap_bytes = 0
@@ -159,7 +160,7 @@ class Gateway:
             previous = self._robot
             self._robot = robot
             self._cap_bytes = vector_cap_bytes(robot.names)
-            self.sim_restarted.clear()
+            self.sim_run.adopt(robot.run_id)
         if previous is None or previous.names != robot.names:
             for subscriber in self._command_subscribers:
                 subscriber.unregister()
@@ -261,12 +262,8 @@ class Gateway:
 
     def _on_sim_status(self, sample: zenoh.Sample) -> None:
         status = self._decode(sample, SimStatus)
-        robot = self._robot
-        if status is None or robot is None:
+        if status is None or self._robot is None or not self.sim_run.follows(status):
             return
-        if status.run_id and status.run_id != robot.run_id and not self.sim_restarted.is_set():
-            logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
-            self.sim_restarted.set()
         if status.episode and status.episode != self._episode:
             if self._episode:
                 # The GUI's sliders that did not move since are not sent again (GuiChanges), so the
@@ -593,7 +590,7 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
                              "`zensim up` stops with it)", ros_shutdown.reason)
                 exit_code = 1
                 break
-            if gateway.sim_restarted.is_set():
+            if gateway.sim_run.restarted.is_set():
                 robot = _learn_robot(session, keys, settings, stop)
                 if robot is None:
                     break
@@ -602,7 +599,7 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
                     logger.info("robot from the restarted sim: %d joints", len(robot.names))
                 except LookupError as exc:
                     logger.warning("the restarted sim's URDF: %s; asking again", exc)
-                    gateway.sim_restarted.set()
+                    gateway.sim_run.restarted.set()
             now = time.monotonic()
             count = gateway.counters.joint_states_published
             gateway.publish_status(seq, (count - last_count) / (now - last_time))

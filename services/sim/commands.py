@@ -195,5 +195,9 @@ class CommandIntake:
         """End the thread (the rings' subscribers are undeclared after: a robot alone's recv ends then)."""
         self._stop.set()
 
-    def join(self) -> None:
-        self._thread.join(1.0)
+    def join(self, timeout_s: float = 5.0) -> None:
+        """Wait for the thread to end (after `close` and the subscribers' undeclare): its take in progress
+        finishes first."""
+        self._thread.join(timeout_s)
+        if self._thread.is_alive():
+            logger.warning("the command thread did not end within %.0f s", timeout_s)

@@ -379,10 +379,14 @@ class RobotEndpoint:
         self.pub_applied.put(advanced.applied)
         self.engine.check_falls()
 
+    def stop_commands(self) -> None:
+        """Undeclare cmd/motors (first, at shutdown: the command thread's recv ends; see SimService.close)."""
+        self.commands.undeclare()
+
     def close(self) -> None:
+        """Undeclare the rest, once the command thread has ended (it publishes states under lockstep)."""
         if self.token is not None:
             self.token.undeclare()
-        self.commands.undeclare()
         for queryable in self._queryables:
             queryable.undeclare()
         self.description.undeclare()

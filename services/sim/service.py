@@ -107,12 +107,17 @@ class SimService:
         self.engine.run()
 
     def close(self) -> None:
+        # The command thread first, and wait for it: under lockstep a command advances the robot and
+        # publishes its states from that thread, and a publisher undeclared while it puts raised "Already
+        # borrowed" (the sim exited 1 at a SIGINT, the put itself "session closed").
         self.intake.close()
+        for robot in self.robots:
+            robot.stop_commands()
+        self.intake.join()
         if self.world_endpoint:
             self.world_endpoint.close()
         for robot in self.robots:
             robot.close()
-        self.intake.join()
         self.engine.close()
 
 

@@ -53,6 +53,7 @@ from dataclasses import dataclass
 
 import zenoh
 
+from zensim.common.follow import SimRun
 from zensim.common.logs import RateLimitedLog
 from zensim.common.pacing import GIL_SWITCH_INTERVAL_S
 from zensim.common.robot_info import fetch_robot
@@ -132,8 +133,8 @@ class UnitreeAdapter:
         self._built = 0  # LowState_ pairs completed (under _lock); the write order
         self._written = 0  # the newest pair written (under _write_lock)
         self.counters = Counters()
-        self.sim_restarted = threading.Event()
-        """Set when state/sim comes from another sim run: the loop learns the robot again."""
+        self.sim_run = SimRun(robot.run_id)
+        """state/sim's run: `sim_run.restarted` is set when another sim run's robot must be learned again."""
         self.highlevel: HighLevel | None = None
         self.adopt(robot)
         self._joints_codec = Codec(JointState)
@@ -167,7 +168,7 @@ class UnitreeAdapter:
             self._robot = robot
             self._builder = LowStateBuilder(len(robot.joint_names), self._settings.mode_machine)
             self._cap_bytes = vector_cap_bytes(robot.joint_names)
-            self.sim_restarted.clear()
+            self.sim_run.adopt(robot.run_id)
         if self.highlevel is not None:
             self.highlevel.adopt(robot.joint_names, self._cap_bytes)
 
@@ -190,9 +191,7 @@ class UnitreeAdapter:
         except DecodeError as exc:
             self._state_log.warning("ignoring bad SimStatus: %s", exc)
             return
-        if status.run_id and status.run_id != self._robot.run_id and not self.sim_restarted.is_set():
-            logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
-            self.sim_restarted.set()
+        self.sim_run.follows(status)  # sets sim_run.restarted on a new run; the episode means nothing here
 
     def _on_state(self, sample: zenoh.Sample, codec: Codec, which: str) -> None:
         try:
@@ -421,7 +420,7 @@ def run(session: zenoh.Session, settings: UnitreeSettings, stop: threading.Event
                              "arm_sdk are no longer read; exiting")
                 code = 1
                 break
-            if adapter.sim_restarted.is_set():
+            if adapter.sim_run.restarted.is_set():
                 robot = fetch_robot(session, keys, settings.info_timeout_s, stop, Robot.from_info, logger)
                 if robot is None:
                     break
