@@ -199,3 +199,25 @@ def test_a_robot_without_a_walking_controller_says_so_in_one_line(start_service,
     assert loco.proc.wait(60) == 0, loco.log()
     lines = [line for line in loco.log().splitlines() if "no walking controller" in line]
     assert len(lines) == 1 and "2 joints" in lines[0], loco.log()
+
+
+def test_a_restarted_sim_is_followed_and_another_robot_ends_the_walking_service(walker, start_service, tmp_path):
+    """A restarted sim of the same G1 (a new run): the controller learns it again and stands it up on the next
+    request; a sim restarted with another robot has no joints for this controller: it exits, saying so."""
+    walker.stand_up()
+    assert walker.sim.stop() == 0
+    walker.sim = start_service("sim", "--clock", "lockstep")
+    wait_for(lambda: "learning the robot again" in walker.loco.log() or not walker.loco.alive(), 60,
+             "the walking service to see the new sim run")
+    walker.odom.wait(lambda m: m.sim_time_s < 1.0, 60, "the new sim's first state")
+    # Released at the restart (the new robot stands in its spawn squat): a new request stands it up.
+    wait_for(lambda: walker.loco_status.value is not None and not walker.loco_status.value.active, 30,
+             "the controller released after the restart")
+    stood = walker.stand_up()
+    assert stood.pos[2] > 0.72 and walker.loco.alive(), (stood.pos, walker.loco.log())
+    assert walker.sim.stop() == 0
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(TWO_JOINT_ARM)
+    start_service("sim", "--urdf", str(urdf))
+    assert walker.loco.proc.wait(60) == 1, walker.loco.log()
+    assert "the restarted sim runs another robot" in walker.loco.log()
