@@ -281,3 +281,94 @@ def test_a_flood_from_many_claimed_sources_costs_the_sim_a_bounded_number_of_dec
     assert 64 <= decoded <= 0.25 * sent, f"{decoded} of {sent} decoded ({shed} shed): the claimed sources bought decodes"
     for publisher in publishers:
         publisher.undeclare()
+
+
+def test_candidates_keep_the_newest_or_a_uniform_sample_of_a_suspects_flood() -> None:
+    """Pure (services/sim/commands.py `Candidates`): a clean source's newest wins; a suspect's flood keeps
+    a good sample among 10 garbage ones about keep/10 of the time wherever it came, never aimed at."""
+    import random
+
+    from zensim.sim.commands import Candidates
+
+    newest: Candidates[int] = Candidates(1, random.Random(1))
+    assert [newest.add(k) for k in range(5)] == [0, 1, 1, 1, 1] and newest.newest_first() == [4]
+    kept = 0
+    for trial in range(2000):
+        suspect: Candidates[str] = Candidates(4, random.Random(trial))
+        good_at = trial % 10
+        for k in range(10):
+            suspect.add("good" if k == good_at else f"garbage{k}")
+        samples = suspect.newest_first()
+        assert len(samples) == 4
+        kept += "good" in samples
+    assert 0.3 < kept / 2000 < 0.5, kept  # 4 of 10, whichever arrival was the good one
+    turns = Turns()
+    turns.choose(["c"])
+    assert not turns.suspect("c")
+    turns.served("c", accepted=True, refused=True)  # a refused command, then an accepted one, in one turn
+    assert turns.suspect("c")
+
+
+def test_garbage_claiming_a_clients_own_source_does_not_starve_it(
+        start_service: Callable[..., Service], zsession: zenoh.Session, robot_id: str, router_endpoint: str) -> None:
+    """Issue 27 item 3: a flood of garbage put under a good client's own zenoh source id (read off its samples,
+    as any subscriber can) replaced each of the client's commands before a take (newest wins per source):
+    its commands stopped applying (command age 51-163 ms median beside a 10 kHz flood). Now a source with
+    refused commands keeps a uniform sample of its arrivals, tried newest first: the client's apply."""
+    keys = Keys(robot_id)
+    status = Latest(zsession, keys.sim_status, SimStatus)
+    status.keep_history = True
+    start_service("sim", "--mode", "fixed", "--watchdog-timeout-s", "60", "--status-rate-hz", "50")
+    wait_alive(zsession, keys)
+    good = zsession.declare_publisher(keys.motors)
+    command = json.dumps({"names": ["left_elbow_joint"], "q": [0.5]})
+    flooder = subprocess.Popen([sys.executable, "-c", FORGED_FLOOD, router_endpoint, keys.motors, "6"],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        sn = 0
+        flooding_from = None
+        while flooder.poll() is None:  # a 50 Hz controller, its source info set as zensim's publishers set it
+            sn += 1
+            good.put(command, source_info=zenoh.SourceInfo(good.id, sn))
+            if flooding_from is None and status.value is not None and status.value.rejected_commands > 100:
+                flooding_from = len(status.history)
+            time.sleep(0.02)
+    finally:
+        if flooder.poll() is None:
+            flooder.kill()
+        out = flooder.communicate(timeout=10)[0]  # reads and closes its pipe
+        good.undeclare()
+    assert flooder.returncode == 0 and flooding_from is not None, out
+    during = status.history[flooding_from:-5]
+    ages = sorted(s.command_age_s for s in during)
+    median, p90 = ages[len(ages) // 2], ages[len(ages) * 9 // 10]
+    print(f"\nflood: {out.strip()}; good client's command age p50 {median * 1e3:.0f} ms, p90 {p90 * 1e3:.0f} ms, "
+          f"max {ages[-1] * 1e3:.0f} ms over {len(ages)} statuses")
+    assert len(ages) > 50 and median < 0.06 and p90 < 0.1, (median, p90, ages[-5:])
+
+
+FORGED_FLOOD = r"""
+import json, os, sys, time, zenoh
+endpoint, key, seconds = sys.argv[1], sys.argv[2], float(sys.argv[3])
+conf = zenoh.Config()
+conf.insert_json5("mode", '"client"')
+conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+with zenoh.open(conf) as session:
+    seen = []
+    sub = session.declare_subscriber(key, lambda s: s.source_info is not None and seen.append(s.source_info.source_id))
+    deadline = time.monotonic() + 10
+    while not seen and time.monotonic() < deadline:
+        time.sleep(0.01)
+    sub.undeclare()
+    if not seen:
+        sys.exit("no sample with source info from the good client")
+    pub = session.declare_publisher(key)
+    garbage = [os.urandom(1 + k % 199) for k in range(500)]
+    sent, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        pub.put(garbage[sent % 500], source_info=zenoh.SourceInfo(seen[0], sent + 1))
+        sent += 1
+        if sent % 10 == 0:
+            time.sleep(0.001)  # about 10 kHz at most
+    print(json.dumps({"sent": sent, "rate_hz": round(sent / (time.perf_counter() - start))}))
+"""

@@ -23,6 +23,14 @@ a second whatever it claims, and a client's steady stream keeps its turn: with 6
 budget of 4, every source is served about 30 times a second at the least, a 100 Hz controller every time
 it sends (it waited longer than the flooders since its last turn).
 
+Nor can a sender starve another by claiming its source (any subscriber reads a client's zenoh source id
+off its samples and can put garbage under it): newest-wins would let each garbage sample shed the good
+command before it. A source whose command was refused is a suspect for SUSPECT_TAKES (`Turns`); while it
+is, its samples are not replaced by the newest but kept as a uniform sample of SUSPECT_KEEP of those that
+came (`Candidates`, a reservoir the flood cannot aim at), and its turn tries them newest first until one
+is accepted, within CHECK_BUDGET_S of the thread's CPU per take for the whole intake. Under a 10 kHz garbage flood
+claiming a 500 Hz client's id most of that client's commands so still apply (docs/benchmarks.md).
+
 A command put on a wildcard (`zensim/*/cmd/motors`) reaches every robot of a world at once: it is refused,
 never applied, and shed like the rest (the newest of a take refused and counted, the older ones shed
 unread), so a wildcard flood costs each robot at most one refusal per take.
@@ -31,10 +39,12 @@ unread), so a wildcard flood costs each robot at most one refusal per take.
 from __future__ import annotations
 
 import logging
+import random
 import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable, Sequence
+from typing import Generic, TypeVar
 
 import zenoh
 
@@ -53,10 +63,20 @@ MAX_DECODES_PER_TAKE = 4
 """Commands a robot decodes per take at most, whatever the number of sources waiting (the rest are shed)."""
 REFUSED_PENALTY_TAKES = 50
 """A source whose command was refused waits this many takes (100 ms) behind the others for its next turn."""
+SUSPECT_TAKES = 500
+"""Takes (about a second) a source stays a suspect after its last refused command."""
+SUSPECT_KEEP = 32
+"""Samples of a suspect source kept for its turn (a uniform sample of those that came since the last take)."""
+CHECK_BUDGET_S = 0.0005
+"""CPU time per take the intake thread spends on suspects' older samples (a quarter of a take period at
+most; a source's newest sample is always tried): garbage is refused in ~3 us, a well-formed command in
+~10-40 us. The thread's own CPU time, not the wall clock: on a loaded machine a wall-clock budget ran out
+while the thread was not even running."""
 MAX_SOURCES = 1024
 """Sources a robot remembers the turns of (the least recently seen is forgotten first)."""
 WILDCARD = "wildcard"
 """The one 'source' of every sample put on a wildcard key (whoever sent it): refused, never applied."""
+T = TypeVar("T")
 COMMAND_POLL_S = 0.0005
 """How often a robot alone's command thread empties zenoh's ring while it waits for the next take (5
 samples of a 10 kHz flood: few enough that the ring holds on to no receive buffers)."""
@@ -83,6 +103,8 @@ class Turns:
         self.budget = budget
         self.take = 0
         self._turn: dict[object, int] = {}
+        self._suspects: dict[object, int] = {}
+        """A suspect source: the take until which it stays one."""
 
     def choose(self, sources: Sequence[object]) -> tuple[list[int], list[int]]:
         """At the start of a take: the positions in `sources` (arrival order) to decode, and those to shed."""
@@ -95,15 +117,59 @@ class Turns:
         order = sorted(range(len(sources)), key=lambda i: self._turn[sources[i]])  # stable: arrival order
         return order[:self.budget], order[self.budget:]
 
-    def served(self, source: object, accepted: bool) -> None:
-        """A source's command was decoded: accepted (its next turn is the next take) or refused (later)."""
+    def served(self, source: object, accepted: bool, refused: bool | None = None) -> None:
+        """A source's turn ended: a command accepted (its next turn is the next take) or none (later).
+
+        `refused` (default: not accepted): one of its commands was refused, which makes it a suspect."""
         self._remember(source, self.take + (1 if accepted else REFUSED_PENALTY_TAKES))
+        if refused is None:
+            refused = not accepted
+        if refused:
+            self._suspects.pop(source, None)
+            self._suspects[source] = self.take + SUSPECT_TAKES
+            if len(self._suspects) > MAX_SOURCES:
+                del self._suspects[next(iter(self._suspects))]
+
+    def suspect(self, source: object) -> bool:
+        """Whether a command of `source` was refused in the last SUSPECT_TAKES takes."""
+        return self._suspects.get(source, -1) >= self.take
 
     def _remember(self, source: object, turn: int) -> None:
         self._turn.pop(source, None)  # re-inserted last: the dict's order is the order sources were last seen
         self._turn[source] = turn
         if len(self._turn) > MAX_SOURCES:
             del self._turn[next(iter(self._turn))]
+
+
+class Candidates(Generic[T]):
+    """The samples of one source waiting for the next take (pure).
+
+    `keep` 1: the newest only (latest wins). More: a uniform sample of `keep` of all that came (reservoir
+    sampling, so which survive a flood cannot be aimed at), tried newest first.
+    """
+
+    def __init__(self, keep: int, rng: random.Random) -> None:
+        self._keep = keep
+        self._rng = rng
+        self._seen = 0
+        self._kept: list[tuple[int, T]] = []
+
+    def add(self, sample: T) -> int:
+        """Take one arrival; returns how many samples were shed for it (0 or 1)."""
+        self._seen += 1
+        if len(self._kept) < self._keep:
+            self._kept.append((self._seen, sample))
+            return 0
+        slot = 0 if self._keep == 1 else self._rng.randrange(self._seen)
+        if slot < self._keep:
+            self._kept[slot] = (self._seen, sample)
+        return 1
+
+    def newest_first(self) -> list[T]:
+        return [sample for _, sample in sorted(self._kept, key=lambda kept: kept[0], reverse=True)]
+
+    def __len__(self) -> int:
+        return len(self._kept)
 
 
 class CommandIntake:
@@ -128,6 +194,7 @@ class CommandIntake:
         self._shed = shed
         self._every_sample = every_sample
         self._turns = [Turns() for _ in self._rings]
+        self._rng = random.Random()  # seeded from the OS: a flooder cannot predict which samples a reservoir keeps
         self._stop = threading.Event()
         self._fail_log = RateLimitedLog(logger)
         self._thread = threading.Thread(target=self._run, name="sim-commands", daemon=True)
@@ -139,7 +206,7 @@ class CommandIntake:
         # Samples leave zenoh's ring at once (a sample kept there keeps its receive buffer alive: the RSS
         # grew by 20 MB under a flood when the ring was left to fill between takes); only the newest of
         # each source waits here, for the next take.
-        pending: dict[tuple[int, object], zenoh.Sample] = {}
+        pending: dict[tuple[int, object], Candidates[zenoh.Sample]] = {}
         alone = len(self._rings) == 1
         wait_s = COMMAND_POLL_S if alone else COMMAND_BATCH_PERIOD_S
         next_take = 0.0
@@ -153,10 +220,15 @@ class CommandIntake:
                         if self._every_sample:
                             self._apply(index, sample, exact)
                         else:
-                            key = (index, source_of(sample) if exact else WILDCARD)
-                            if pending.pop(key, None) is not None:  # re-inserted: keeps arrival order
+                            source = source_of(sample) if exact else WILDCARD
+                            key = (index, source)
+                            candidates = pending.pop(key, None)  # re-inserted: keeps arrival order
+                            if candidates is None:
+                                suspect = source != WILDCARD and self._turns[index].suspect(source)
+                                candidates = Candidates(SUSPECT_KEEP if suspect else 1, self._rng)
+                            if candidates.add(sample):
                                 self._shed(index)
-                            pending[key] = sample
+                            pending[key] = candidates
                         sample = ring.try_recv()
             except zenoh.ZError:  # undeclared at shutdown
                 return
@@ -167,18 +239,33 @@ class CommandIntake:
                 self._stop.wait(min(next_take - now, wait_s) if pending else wait_s)
                 continue
             next_take = max(next_take + COMMAND_BATCH_PERIOD_S, now) if not alone else now + COMMAND_BATCH_PERIOD_S
-            waiting: dict[int, list[tuple[object, zenoh.Sample]]] = defaultdict(list)
-            for (index, source), sample in pending.items():
-                waiting[index].append((source, sample))
+            waiting: dict[int, list[tuple[object, Candidates[zenoh.Sample]]]] = defaultdict(list)
+            for (index, source), candidates in pending.items():
+                waiting[index].append((source, candidates))
             pending.clear()
-            for index, samples in waiting.items():
+            checks_end = time.thread_time() + CHECK_BUDGET_S
+            for index, sources in waiting.items():
                 turns = self._turns[index]
-                chosen, shed = turns.choose([source for source, _ in samples])
-                for _ in shed:
-                    self._shed(index)
+                chosen, shed = turns.choose([source for source, _ in sources])
+                for position in shed:
+                    for _ in range(len(sources[position][1])):
+                        self._shed(index)
                 for position in chosen:
-                    source, sample = samples[position]
-                    turns.served(source, self._apply(index, sample, source != WILDCARD))
+                    source, candidates = sources[position]
+                    self._serve(index, source, candidates, checks_end)
+
+    def _serve(self, index: int, source: object, candidates: Candidates[zenoh.Sample], checks_end: float) -> None:
+        """One source's turn: its samples newest first until one is accepted (the rest shed unread); a
+        suspect's older ones only while the take's check budget lasts."""
+        accepted = refused = False
+        for tried, sample in enumerate(candidates.newest_first()):
+            if accepted or (tried and time.thread_time() > checks_end):
+                self._shed(index)
+            elif self._apply(index, sample, source != WILDCARD):
+                accepted = True
+            else:
+                refused = True
+        self._turns[index].served(source, accepted, refused)
 
     def _apply(self, index: int, sample: zenoh.Sample, exact: bool) -> bool:
         """Take (or, put on a wildcard, refuse) one sample; True when it was accepted."""
