@@ -3,7 +3,9 @@ MuJoCo model, and under `--clock lockstep` one request commands them all and bri
 
 Start the world with `zensim sim --world lab.toml --clock lockstep` (services/sim/README.md has the
 file's format); its id (`id = "lab"`) names the world's keys, zensim/lab/world/*, and each robot keeps
-its own keys, zensim/{robot}/*. world/info lists the robots.
+its own keys, zensim/{robot}/*. world/info lists the robots. A controller whose credential covers one
+robot only (docs/security.md, "Robots of one world") sends the same request to zensim/{robot}/world/advance,
+with that robot's command alone.
 
     python examples/drive_world.py --world lab --ticks 250
 """

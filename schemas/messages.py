@@ -468,7 +468,8 @@ class WorldAdvanceRequest(Message, frozen=True, tag="world_advance_request", kw_
     """world/advance (a world under the lockstep clock): several robots' commands, one step of time for all."""
 
     commands: dict[str, MotorCommand] = {}
-    """Robot id -> its new motor command; a robot left out keeps its held command."""
+    """Robot id -> its new motor command; a robot left out keeps its held command. On a robot's own key
+    (`zensim/{robot}/world/advance`) only that robot's id may appear."""
 
 
 class RobotStates(Message, frozen=True, tag="robot_states", kw_only=True):
@@ -491,7 +492,7 @@ class WorldAdvanceReply(Message, frozen=True, tag="world_advance_reply", kw_only
     steps: int = 0
     """Physics steps since the world's last reset."""
     states: dict[str, RobotStates] = {}
-    """Robot id -> its states of the new instant (every robot of the world)."""
+    """Robot id -> its states of the new instant (every robot of the world; on a robot's own key, that robot's)."""
 
 
 MAX_WORLD_ROBOTS = 256

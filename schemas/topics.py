@@ -185,7 +185,9 @@ WORLD_STEP: Final = Topic("world/step", "queryable", "any client", "sim (a world
                           StepRequest, CtlReply, note=WORLD_NOTE, name="world_step")
 WORLD_ADVANCE: Final = Topic("world/advance", "queryable", "any client (a controller of several robots)",
                              "sim (a world, `--clock lockstep`)", "on demand", WorldAdvanceRequest, WorldAdvanceReply,
-                             note=WORLD_NOTE, name="world_advance")
+                             note="(`{robot}` is the world's id: any of its robots' commands; or one robot's id in "
+                                  "a world: that robot's command alone, an entry for another refuses the request, "
+                                  "that robot's states back; docs/security.md)", name="world_advance")
 WORLD_RESET: Final = Topic("world/reset", "queryable", "any client", "sim (a world)", "on demand", ResetRequest,
                            CtlReply, note="(every robot to its default pose, world time to 0: an empty request)",
                            name="world_reset")
@@ -284,7 +286,7 @@ EVERY_ROLE_WATCHES: Final = ("alive/*", "claim/*")
 ROLES: Final[tuple[Role, ...]] = (
     Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim", "alive/world", "claim/*")),
     Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
-    Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info"), tokens=("alive/viz",)),
+    Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info", "world/pause", "world/resume", "world/step"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (its sport service forwards to `zensim loco`)", publishes=("cmd/motors", "state/unitree", "cmd/velocity", "cmd/arms"), subscribes=("state/**", "cmd/remote"), queries=("info/**", "ctl/loco"), tokens=("alive/unitree",)),
     Role("loco", "service", "the walking controller", publishes=("cmd/motors", "state/loco"), subscribes=("state/**", "cmd/velocity", "cmd/arms"), serves=("ctl/loco",), queries=("info/**",), tokens=("alive/loco",)),
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1", "cmd/velocity"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),

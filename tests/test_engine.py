@@ -2,8 +2,9 @@
 
 - A robot's ctl/reset in a world leaves the world's schedule alone (it replaced the world's one pacer:
   every robot's schedule restarted, so resets at a steady rate ran the world faster than its rtf).
-- ctl/step of a robot in a paused world checks MuJoCo's warnings (they are the world's; the robot's own
-  check skipped them, and a world MuJoCo had silently reset answered `ok`).
+- world/step of a paused world checks MuJoCo's warnings and says so (they are the world's; a robot's own
+  check skipped them, and a world MuJoCo had silently reset answered `ok`). A robot of a world of several
+  refuses ctl/step: it would step every robot (issue 26).
 - A world of 8 robots compiles MuJoCo once (each robot compiled its other mode again, only to describe it);
   ctl/reset with a mode and `zensim robot build` compile once (they compiled twice).
 - A world of several robots refuses a mode switch and says why; a world of one rebuilds.
@@ -143,7 +144,7 @@ def test_a_robots_reset_in_a_world_leaves_the_others_schedule_alone(
     assert rate < 0.14, f"b's sim time ran at {rate:.3f} x real time while a was reset {resets} times (rtf 0.1)"
 
 
-def test_ctl_step_in_a_paused_world_checks_mujocos_warnings_and_a_mode_switch_is_refused(
+def test_world_step_in_a_paused_world_checks_mujocos_warnings_and_a_mode_switch_is_refused(
         tmp_path: Path, start_service: Callable[..., Service], zsession: zenoh.Session, robot_id: str) -> None:
     a, b = f"{robot_id}-a", f"{robot_id}-b"
     start_service("sim", "--world", world_file(tmp_path, f"{robot_id}-w", [a, b]), "--timestep-s", "0.05",
@@ -153,7 +154,7 @@ def test_ctl_step_in_a_paused_world_checks_mujocos_warnings_and_a_mode_switch_is
     wait_alive(zsession, Keys(a))
     zsession.put(Keys(a).motors, json.dumps(STIFF_WRIST))
     status_a.wait(lambda s: s.command_age_s is not None, 10, "the stiff command held")
-    reply = ctl(zsession, Keys(a).ctl("step"), {"n": 20})
+    reply = ctl(zsession, Keys(f"{robot_id}-w").world_step, {"n": 20})
     assert reply["ok"] is False and "physics broke" in reply["error"] and "MuJoCo" in reply["error"], reply
     # MuJoCo's warnings are the whole world's: every robot was reset, and says why.
     for status in (status_a, status_b):

@@ -189,7 +189,8 @@ def test_every_service_declares_only_what_its_role_lists(start_service, zsession
 
 def test_a_world_viewer_declares_only_what_the_viz_role_lists(start_service, zsession, robot_id: str,
                                                                tmp_path: Path) -> None:
-    """`zensim viz --world`: world/info on the world's id, and each robot's keys as for a robot alone."""
+    """`zensim viz --world`: world/info and the clock's verbs on the world's id, and each robot's keys as for a
+    robot alone."""
     from support import TWO_JOINT_ARM
 
     audit_dir = tmp_path / "audit"
@@ -202,8 +203,10 @@ def test_a_world_viewer_declares_only_what_the_viz_role_lists(start_service, zse
     viz_port = free_port()
     viz = start_service("viz", "--port", str(viz_port), "--world", ids["world"], env=audit_env(audit_dir))
     wait_for(lambda: "description of world" in viz.log(), 60, "the viz to fetch the world")
-    viz_click(viz_port, "pause")  # the selected (first) robot's ctl/pause
-    wait_for(lambda: "ctl/pause -> ok=True" in viz.log(), 30, "the viz's ctl query answered")
+    viz_click(viz_port, "pause")  # the world's pause (its robots share one clock), then the robot's reset
+    wait_for(lambda: "world/pause -> ok=True" in viz.log(), 30, "the viz's world/pause answered")
+    viz_click(viz_port, "reset")
+    wait_for(lambda: "ctl/reset -> ok=True" in viz.log(), 30, "the viz's ctl/reset answered")
     viz.stop(15)
     records = audits(audit_dir)["viz"]
     by_root: dict[str, list[dict]] = {}
@@ -212,8 +215,9 @@ def test_a_world_viewer_declares_only_what_the_viz_role_lists(start_service, zse
     assert set(by_root) == set(ids.values()) | {"@router"}, sorted(by_root)
     wrong = [line for robot in ids.values() for line in violations(role("viz"), by_root[robot], robot)]
     assert not wrong, "\n".join(wrong)
-    assert {r["key"].split("?")[0] for r in by_root[ids["world"]]} == {Keys(ids["world"]).world_info}
-    assert Keys(ids["g1"]).ctl_pause in {r["key"] for r in by_root[ids["g1"]]}
+    assert {r["key"].split("?")[0] for r in by_root[ids["world"]]} == {Keys(ids["world"]).world_info,
+                                                                     Keys(ids["world"]).world_pause}
+    assert Keys(ids["g1"]).ctl_reset in {r["key"] for r in by_root[ids["g1"]]}
 
 
 ROGUE = """

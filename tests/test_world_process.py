@@ -3,7 +3,8 @@
 Three robots share one MuJoCo world: two G1s facing each other a metre apart and the two-joint arm
 on a stand. The bridge and the viewer (real chromium) drive and show G1 `a`, a plain client drives
 G1 `b` through cmd/motors and the arm too; `b` leans into `a` and knocks it over (contacts between
-robots); resetting `b` puts only `b` back. The world's own verbs pause, step and resume every robot.
+robots); resetting `b` puts only `b` back. The world's own verbs pause, step and resume every robot; a
+robot's own ctl/pause, ctl/step and ctl/resume, which would move them all, are refused.
 """
 
 from __future__ import annotations
@@ -249,8 +250,15 @@ def test_world_verbs_pause_step_resume_and_reset_every_robot(
     assert t1 - t0 == pytest.approx(0.02, abs=1e-9)
     time.sleep(0.3)
     assert all(status[r].value.paused and status[r].value.sim_time_s == pytest.approx(t1) for r in ids)
-    # A robot's own pause verb is the world's: its robots cannot run apart.
-    assert ctl(zsession, Keys(world["a"]).ctl_resume)["ok"]
+    # A robot's own pause, step and resume would move or stop every robot (one clock): refused, naming the
+    # world's verb, nothing done; a robot's verbs act on that robot alone.
+    for verb in ("resume", "step", "pause"):
+        refused = ctl(zsession, Keys(world["a"]).ctl(verb), {"n": 1} if verb == "step" else None)
+        assert not refused["ok"] and f"{keys.root}/world/{verb}" in refused["error"], refused
+    status[world["a"]].wait(lambda s: s.rejected_requests >= 3, 5, "the refusals counted")
+    time.sleep(0.3)
+    assert all(status[r].value.paused and status[r].value.sim_time_s == pytest.approx(t1) for r in ids)
+    assert ctl(zsession, keys.world_resume)["ok"]
     for r in ids:
         status[r].wait(lambda s: not s.paused and s.sim_time_s > t1 + 0.2, 10, f"{r} running again")
     # Refused, nothing done: world/reset takes no pose; a wildcard reaches every verb and none acts.

@@ -3,6 +3,7 @@
     zensim secure init secrets --host sim-host.lan --host 192.168.1.20
     zensim up --secure-dir secrets           # router + services over TLS with roles
     zensim secure init secrets --robots operator=a --robots viewer=a,b   # credentials scoped to robots
+    zensim secure init secrets --client alice=operator:a --client bob=operator:b   # one more credential each
     # any Zenoh client: load secrets/operator.json5 (or viewer.json5) and add connect/endpoints
 
 The folder's layout and the roles are described in services/common/secure.py and docs/security.md.
@@ -15,7 +16,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from zensim.common.secure import DEFAULT_HOSTS, DEFAULT_ROS_DOMAINS, SecureConfigError, init
+from zensim.common.secure import DEFAULT_HOSTS, DEFAULT_ROS_DOMAINS, Client, SecureConfigError, init
 from zensim.common.settings import ROUTER_PORT, SECURE_LOCAL_ROUTER_ENDPOINT
 from zensim.schemas.topics import ROLE_NAMES
 
@@ -33,6 +34,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     make.add_argument("--robots", action="append", default=[], metavar="ROLE=ID[,ID...]",
                       help="the robot ids a role's credential may act on (repeatable, e.g. operator=a; "
                            "default: every robot)")
+    make.add_argument("--client", action="append", default=[], metavar="NAME=ROLE[:ID,...]",
+                      help="one more credential, NAME.json5, with a client role's rules on its own robots (repeatable, "
+                           "e.g. alice=operator:a; no ids: every robot): several people on one router, each "
+                           "with robots of their own")
     make.add_argument("--ros-domain", action="append", type=int, default=[], metavar="N",
                       help="a ROS domain whose rmw_zenoh keys `zensim ros2` and ROS 2 nodes may use (repeatable; "
                            "default 0; docs/ros.md)")
@@ -49,15 +54,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not robots[name.strip()]:
             print(f"zensim secure: --robots takes ROLE=ID[,ID...], not {scope!r}", file=sys.stderr)
             return 2
+    clients = []
+    for given in args.client:
+        name, _, rest = given.partition("=")
+        its_role, _, ids = rest.partition(":")
+        if not name.strip() or not its_role.strip():
+            print(f"zensim secure: --client takes NAME=ROLE[:ID,...], not {given!r}", file=sys.stderr)
+            return 2
+        clients.append(Client(name.strip(), its_role.strip(), tuple(i.strip() for i in ids.split(",") if i.strip())))
     try:
         bad_domains = [d for d in args.ros_domain if not 0 <= d <= 232]
         if bad_domains:
             raise SecureConfigError(f"a ROS domain is 0 to 232, not {bad_domains[0]}")
-        init(args.dir, tuple(args.host), listen, args.days, robots, tuple(args.ros_domain) or DEFAULT_ROS_DOMAINS)
+        init(args.dir, tuple(args.host), listen, args.days, robots, tuple(args.ros_domain) or DEFAULT_ROS_DOMAINS,
+             clients)
     except SecureConfigError as exc:
         print(f"zensim secure: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {args.dir}: router.json5, users.txt, ca.pem and one config per role ({', '.join(ROLE_NAMES)})")
+    named = f"; named clients: {', '.join(c.name for c in clients)}" if clients else ""
+    print(f"wrote {args.dir}: router.json5, users.txt, ca.pem and one config per role ({', '.join(ROLE_NAMES)}){named}")
     print(f"run:      zensim up --secure-dir {args.dir}")
     print(f"clients:  zenoh.Config.from_file('{args.dir}/operator.json5') + connect/endpoints "
           f"[\"tls/<router host>:{ROUTER_PORT}\"]")

@@ -7,6 +7,8 @@
     <role>.json5     one client config per role of the topic registry (schemas/topics.py ROLES): each
                      service's own (sim, bridge, viz, unitree, ros1, recorder, replay) and ready-made
                      ones for people and tools (operator, viewer); its user, password and certificate
+    <name>.json5     one more per named client (`--client NAME=ROLE:ID,...`): a person or tool with a client
+                     role's rules on robots of its own (two operators, each of one robot of a world)
     ca.pem           the CA certificate (to check the router's certificate by hand)
 
 Every client config is self-contained (certificates inline as base64), so any
@@ -25,6 +27,7 @@ import os
 import secrets
 import stat
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
@@ -32,7 +35,7 @@ import zenoh
 
 from zensim.common.settings import ROUTER_PORT, SECURE_LOCAL_ROUTER_ENDPOINT
 from zensim.schemas.keys import ROOT, check_robot_id
-from zensim.schemas.topics import EVERY_ROLE_WATCHES, ROLE_NAMES, ROLES, ROUTER_ALIVE, Role
+from zensim.schemas.topics import EVERY_ROLE_WATCHES, ROLE_NAMES, ROLES, ROUTER_ALIVE, Role, role
 
 DEFAULT_HOSTS: Final = ("localhost", "127.0.0.1", "::1", "router")
 """Names every router certificate carries: this machine, and compose's service name `router`."""
@@ -42,6 +45,49 @@ CERT_DAYS: Final = 825
 
 class SecureConfigError(ValueError):
     """A secure folder that is missing a file or is used with plain endpoints; names what is wrong."""
+
+
+RESERVED_NAMES: Final = frozenset((*ROLE_NAMES, "router", "ca", "users"))
+"""Names a named client cannot take: a role's (its file and user), the router's, the folder's other files'."""
+
+
+@dataclass(frozen=True)
+class Client:
+    """One more credential with a client role's rules (`zensim secure init --client NAME=ROLE:ID,...`).
+
+    A role is one credential, with one scope; a named client is another user and certificate with the same
+    rules on robots of its own, so two people on one router can each drive their own robots (each robot of a
+    world, for instance).
+
+    Args:
+        name: its user name, `zensim-<name>` certificate and `<name>.json5` file.
+        role: the client role whose rules it has (operator, viewer).
+        robots: the robot ids it may act on; empty: every robot.
+    """
+
+    name: str
+    role: str
+    robots: tuple[str, ...] = ()
+
+    def check(self) -> None:
+        """Raises SecureConfigError naming what is wrong: a bad or reserved name, a service role, a bad robot id."""
+        try:
+            check_robot_id(self.name)  # the same alphabet: it becomes a file, a user and a certificate name
+        except ValueError:
+            raise SecureConfigError(f"--client {self.name[:80]!r}: a name is 1 to 64 characters of [a-z0-9_-]") from None
+        try:
+            for robot in self.robots:
+                check_robot_id(robot)
+            kind = role(self.role).kind
+        except (ValueError, KeyError) as exc:
+            raise SecureConfigError(f"--client {self.name}: {str(exc).strip(chr(34))}") from None
+        if self.name in RESERVED_NAMES:
+            raise SecureConfigError(f"--client {self.name}: the name is taken (roles and files: "
+                                    f"{', '.join(sorted(RESERVED_NAMES))})")
+        if kind != "client":
+            clients = ", ".join(r.name for r in ROLES if r.kind == "client")
+            raise SecureConfigError(f"--client {self.name}: {self.role} is a service's role; a named client takes a "
+                                    f"client role ({clients})")
 
 
 # ------------------------------------------------------------------------------------- access rules
@@ -101,35 +147,44 @@ def role_rules(role: Role) -> list[tuple[str, list[str], list[str]]]:
 
 
 def access_control(robots: Mapping[str, Sequence[str]] | None = None,
-                   ros_domains: Sequence[int] = DEFAULT_ROS_DOMAINS) -> dict:
-    """Zenoh's `access_control` block: one subject per role (its user name and certificate name).
+                   ros_domains: Sequence[int] = DEFAULT_ROS_DOMAINS, clients: Sequence[Client] = ()) -> dict:
+    """Zenoh's `access_control` block: one subject per role and per named client (its user name and
+    certificate name).
 
     Args:
         robots: role -> the robot ids its credential may act on; a role not named acts on every robot.
         ros_domains: the ROS domains whose rmw_zenoh keys roles with `ros2` access may use.
+        clients: named clients, each with its role's rules on its own robots.
     """
     robots = robots or {}
-    rules, subjects, policies = [], [], []
-    for role in ROLES:
-        scope = [check_robot_id(r) for r in robots.get(role.name, ())] or [ALL_ROBOTS]
-        ids = []
-        for n, (flow, messages, keys) in enumerate(role_rules(role)):
-            ids.append(f"{role.name}-{n}")
-            rules.append({"id": ids[-1], "flows": [flow], "permission": "allow", "messages": messages,
-                          "key_exprs": [f"{ROOT}/{robot}/{key}" for robot in scope for key in keys]})
-        for n, (flow, messages) in enumerate(ROUTER_WATCH_RULES):
-            ids.append(f"{role.name}-router-{n}")
-            rules.append({"id": ids[-1], "flows": [flow], "permission": "allow", "messages": messages,
-                          "key_exprs": [ROUTER_ALIVE.full_key()]})
-        if role.ros2:
-            for n, (flow, messages) in enumerate(ROS2_WRITE_RULES if role.ros2 == "write" else ROS2_READ_RULES):
-                ids.append(f"{role.name}-ros2-{n}")
-                rules.append({"id": ids[-1], "flows": [flow], "permission": "allow", "messages": messages,
-                              "key_exprs": [key for domain in ros_domains for key in ros2_keys(domain)]})
-        subjects.append({"id": role.name, "usernames": [role.name], "cert_common_names": [cert_name(role.name)]})
-        policies.append({"id": role.name, "rules": ids, "subjects": [role.name]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
-            "policies": policies}
+    block: dict = {"enabled": True, "default_permission": "deny", "rules": [], "subjects": [], "policies": []}
+    for each in ROLES:
+        _add_subject(block, each.name, each.name, each, robots.get(each.name, ()), ros_domains)
+    for client in clients:  # rule ids prefixed apart: a client's name never makes a role's rule id
+        _add_subject(block, client.name, f"client-{client.name}", role(client.role), client.robots, ros_domains)
+    return block
+
+
+def _add_subject(block: dict, name: str, rule_prefix: str, of: Role, robots: Sequence[str],
+                 ros_domains: Sequence[int]) -> None:
+    """One subject (user `name`, certificate `zensim-<name>`) with role `of`'s rules on `robots` (all if none)."""
+    scope = [check_robot_id(r) for r in robots] or [ALL_ROBOTS]
+    ids: list[str] = []
+
+    def allow(suffix: str, flow: str, messages: list[str], keys: list[str]) -> None:
+        ids.append(f"{rule_prefix}-{suffix}")
+        block["rules"].append({"id": ids[-1], "flows": [flow], "permission": "allow", "messages": messages,
+                               "key_exprs": keys})
+
+    for n, (flow, messages, keys) in enumerate(role_rules(of)):
+        allow(str(n), flow, messages, [f"{ROOT}/{robot}/{key}" for robot in scope for key in keys])
+    for n, (flow, messages) in enumerate(ROUTER_WATCH_RULES):
+        allow(f"router-{n}", flow, messages, [ROUTER_ALIVE.full_key()])
+    if of.ros2:
+        for n, (flow, messages) in enumerate(ROS2_WRITE_RULES if of.ros2 == "write" else ROS2_READ_RULES):
+            allow(f"ros2-{n}", flow, messages, [key for domain in ros_domains for key in ros2_keys(domain)])
+    block["subjects"].append({"id": name, "usernames": [name], "cert_common_names": [cert_name(name)]})
+    block["policies"].append({"id": name, "rules": ids, "subjects": [name]})
 
 
 def cert_name(role: str) -> str:
@@ -248,7 +303,7 @@ def check_own_folder(folder: Path) -> None:
 
 def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = (SECURE_LOCAL_ROUTER_ENDPOINT,),
          days: int = CERT_DAYS, robots: Mapping[str, Sequence[str]] | None = None,
-         ros_domains: Sequence[int] = DEFAULT_ROS_DOMAINS) -> list[Path]:
+         ros_domains: Sequence[int] = DEFAULT_ROS_DOMAINS, clients: Sequence[Client] = ()) -> list[Path]:
     """Make a CA, the router's certificate, one certificate and password per role, and the configs.
 
     The CA key is not kept: run `init` again (into a fresh folder) to change hosts or roles.
@@ -260,13 +315,20 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = (S
         days: certificate lifetime.
         robots: role -> the robot ids its credential may act on (default: every robot).
         ros_domains: the ROS domains whose rmw_zenoh keys `zensim ros2` and ROS 2 nodes may use.
+        clients: named clients: one more credential each (`<name>.json5`), a client role's rules on its robots.
 
     Returns:
         The files written.
 
     Raises:
-        SecureConfigError: `folder` is not empty, or `robots` names an unknown role or a bad robot id.
+        SecureConfigError: `folder` is not empty, `robots` names an unknown role or a bad robot id, or a
+            named client is bad (Client.check) or named twice.
     """
+    for client in clients:
+        client.check()
+    names = [client.name for client in clients]
+    if len(set(names)) != len(names):
+        raise SecureConfigError(f"--client names must be unique: {', '.join(names)}")
     for name, ids in (robots or {}).items():
         if name not in ROLE_NAMES:
             raise SecureConfigError(f"no role {name!r} to scope; roles: {', '.join(ROLE_NAMES)}")
@@ -292,7 +354,7 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = (S
         written.append(folder / name)
 
     put("ca.pem", ca_pem.decode(), private=False)
-    passwords = {role: secrets.token_urlsafe(24) for role in ROLE_NAMES}
+    passwords = {name: secrets.token_urlsafe(24) for name in (*ROLE_NAMES, *names)}
     put(USERS_FILE, "".join(f"{role}:{pw}\n" for role, pw in passwords.items()))
     router = {
         "mode": "router",
@@ -305,25 +367,27 @@ def init(folder: Path, hosts: tuple[str, ...] = (), listen: tuple[str, ...] = (S
             # zensim sets the absolute path at start; zenohd needs it edited to where the file is.
             "auth": {"usrpwd": {"dictionary_file": USERS_FILE}},
         },
-        "access_control": access_control(robots, ros_domains),
+        "access_control": access_control(robots, ros_domains, clients),
     }
     put("router.json5", _json5(f"zensim router, secured (hosts: {', '.join(all_hosts)}). Keep private.", router))
-    for role in ROLE_NAMES:
+    roles_of = {**{name: name for name in ROLE_NAMES}, **{client.name: client.role for client in clients}}
+    for name, its_role in roles_of.items():
         key = _new_key()
-        pem = _cert(cert_name(role), key, "zensim CA", ca_key, days, client=True)
-        client = {
+        pem = _cert(cert_name(name), key, "zensim CA", ca_key, days, client=True)
+        config = {
             "mode": "client",
             "transport": {
                 "link": {"tls": {"root_ca_certificate_base64": _b64(ca_pem),
                                  "connect_certificate_base64": _b64(pem),
                                  "connect_private_key_base64": _b64(_key_pem(key)),
                                  "enable_mtls": True}},
-                "auth": {"usrpwd": {"user": role, "password": passwords[role]}},
+                "auth": {"usrpwd": {"user": name, "password": passwords[name]}},
             },
         }
-        put(f"{role}.json5", _json5(
-            f"zensim {role} credentials: a Zenoh client config; add connect/endpoints, e.g.\n"
-            f'  "connect": {{"endpoints": ["tls/<router host>:{ROUTER_PORT}"]}}\nKeep private.', client))
+        what = f"zensim {name} credentials" if name == its_role else f"zensim {name} credentials (role {its_role})"
+        put(f"{name}.json5", _json5(
+            f"{what}: a Zenoh client config; add connect/endpoints, e.g.\n"
+            f'  "connect": {{"endpoints": ["tls/<router host>:{ROUTER_PORT}"]}}\nKeep private.', config))
     return written
 
 

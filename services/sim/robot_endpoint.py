@@ -13,9 +13,12 @@ every failure into a counted, bounded refusal (common/wire.py, common/queryable.
 the robot (physics.py), and control queryables that act only on a query for exactly their own key,
 since a wildcard query (`zensim/g1/**`) reaches every queryable at once.
 
-Time is the world's: a robot's ctl/pause, ctl/resume and ctl/step act on the whole world (its robots
-cannot run apart); a robot's ctl/reset resets only that robot. The engine (engine.py) does what each
-verb asks; this class only says it on the wire.
+A robot's verbs act on that robot alone: ctl/reset resets only it, cmd/motors commands only it. Time is
+the world's (its robots cannot run apart), so a robot of a world of several refuses ctl/pause, ctl/resume
+and ctl/step, which would move or stop every robot, and its reply names the world's verbs instead
+(zensim/{world}/world/*): a credential scoped to one robot of a world (docs/security.md) then cannot stop or
+step the others through it. A robot alone (a world of one) still pauses and steps itself. The engine
+(engine.py) does what each verb asks; this class only says it on the wire.
 """
 
 from __future__ import annotations
@@ -278,15 +281,31 @@ class RobotEndpoint:
         self.engine.request_log.info("%s reset (mode %s)", self.keys.robot, self.sim.mode)
         return self._status_reply()
 
+    def _shared_clock(self, verb: str) -> CtlReply | None:
+        """The refusal of a verb that would move or stop every robot of a world of several; None: a robot alone."""
+        world = self.engine.world
+        if len(world) == 1:
+            return None
+        return self._status_reply(ok=False, error=bounded(
+            f"ctl/{verb}: {self.keys.robot} is one of the {len(world)} robots of the world {world.id}, which share "
+            f"one clock: it would {verb} them all; send {Keys(world.id).root}/world/{verb} (the world's verb), "
+            f"nothing was done"))
+
     def _pause(self, _request: PauseRequest) -> CtlReply:
+        if refused := self._shared_clock("pause"):
+            return refused
         self.engine.pause()
         return self._status_reply()
 
     def _resume(self, _request: ResumeRequest) -> CtlReply:
+        if refused := self._shared_clock("resume"):
+            return refused
         self.engine.resume()
         return self._status_reply()
 
     def _step(self, request: StepRequest) -> CtlReply:
+        if refused := self._shared_clock("step"):
+            return refused
         if not self.engine.paused:
             return self._status_reply(ok=False, error="ctl/step works while paused; send ctl/pause first")
         broken = [reason for index, reason in self.engine.step(request.n) if index in (WHOLE_WORLD, self.index)]

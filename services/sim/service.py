@@ -88,7 +88,8 @@ class SimService:
         self.robots = robots = [
             RobotEndpoint(session, engine, index, robot_id, advances, refusal_logs if world_file else None)
             for index, robot_id in enumerate(world.sims)]
-        self.world_endpoint = WorldEndpoint(session, engine, world_file.robots) if world_file else None
+        self.world_endpoint = WorldEndpoint(session, engine, world_file.robots,
+                                            [robot.request_refusals for robot in robots]) if world_file else None
         engine.serve(robots, [self.world_endpoint] if self.world_endpoint else [])
         self.intake = CommandIntake([robot.commands.handler for robot in robots], [robot.keys.motors for robot in robots],
                                     take=lambda index, sample: robots[index].take_command(sample),

@@ -1,8 +1,20 @@
-"""A world's own verbs, under the world's id: zensim/{world}/world/pause|resume|step|reset|advance|info.
+"""A world's own verbs, under the world's id: zensim/{world}/world/pause|resume|step|reset|advance|info, and
+world/advance under each robot's id: zensim/{robot}/world/advance.
 
 Serves:  world/pause, world/resume, world/step, world/reset (-> CtlReply), world/advance (lockstep:
-         WorldAdvanceRequest -> WorldAdvanceReply), world/info (WorldInfo)
+         WorldAdvanceRequest -> WorldAdvanceReply), world/info (WorldInfo), all under the world's id;
+         world/advance under each robot's id (that robot's entry only, that robot's states back)
 Token:   alive/world (the world's own id is taken while it runs, services/common/claim.py)
+
+Who may do what is the router's to say (docs/security.md): its access rules are on key expressions, and
+a query's payload is out of their sight. So the key a request comes on is its authority, and the sim only
+acts on a query for exactly that key (a wildcard reaches every queryable and is refused): the world's id
+is the whole world (its verbs move every robot; scope a credential to it only if it may move them all),
+a robot's id is that robot. world/advance on a robot's key carries that robot's command alone: an entry
+for any other robot refuses the whole request (nothing applied, counted in that robot's
+`rejected_requests`), so a credential scoped to robot `a` drives `a` in a lockstep world and cannot
+command `b`, whatever its payload says. Its advance moves the world's one clock (the other robots hold
+their commands), as a robot alone's ctl/advance does.
 
 What the verbs do is the engine's (engine.py); each robot's own keys are its RobotEndpoint's.
 """
@@ -57,7 +69,8 @@ class WorldEndpoint:
         entries: the world file's robots, in the world's order (world/info lists them).
     """
 
-    def __init__(self, session: zenoh.Session, engine: Engine, entries: Sequence[RobotEntry]) -> None:
+    def __init__(self, session: zenoh.Session, engine: Engine, entries: Sequence[RobotEntry],
+                 robot_refusals: Sequence[Refusals] = ()) -> None:
         self._session = session
         self.engine = engine
         world = engine.world
@@ -83,6 +96,12 @@ class WorldEndpoint:
             TypedQueryable(session, keys.world_info, lambda query: query.reply(self.info), WorldInfo, self.refusals,
                            cap_bytes=WORLD_INPUT_CAP_BYTES),
         ]
+        # Each robot's own world/advance: authorised by its key (the router's rules), refusals counted in the
+        # robot's status, where a client scoped to it reads them.
+        for robot_id, refusals in zip(world.sims, robot_refusals):
+            self._queryables.append(TypedQueryable(
+                session, Keys(robot_id).world_advance, self._robot_advance(robot_id), WorldAdvanceReply, refusals,
+                WorldAdvanceRequest, advance_cap_bytes, refused=self._advance_refusal))
         self.token: zenoh.LivelinessToken | None = None
 
     def announce(self) -> None:
@@ -121,7 +140,10 @@ class WorldEndpoint:
     def _step(self, request: StepRequest) -> CtlReply:
         if not self.engine.paused:
             return self._reply(ok=False, error="world/step works while paused; send world/pause first")
-        self.engine.step(request.n)
+        broken = self.engine.step(request.n)
+        if broken:  # already followed by a reset: the reply says why the world moved back
+            return msgspec.structs.replace(self._take_reply_state(), ok=False,
+                                           error=bounded(f"the physics broke ({broken[0][1]}): reset"))
         return self._take_reply_state()
 
     def _reset(self, request: ResetRequest) -> CtlReply:
@@ -134,21 +156,37 @@ class WorldEndpoint:
 
     # --- world/advance: on the query's thread ------------------------------------------------------
 
-    def _on_advance(self, query: TypedQuery[WorldAdvanceRequest, WorldAdvanceReply]) -> None:
+    def _robot_advance(self, robot_id: str) -> Callable[[TypedQuery[WorldAdvanceRequest, WorldAdvanceReply]], None]:
+        """world/advance on robot `robot_id`'s own key: its entry alone."""
+        return lambda query: self._on_advance(query, only=robot_id)
+
+    def _on_advance(self, query: TypedQuery[WorldAdvanceRequest, WorldAdvanceReply], only: str | None = None) -> None:
         """As ctl/advance of a robot alone: stepped on this thread, under the physics lock, answered first and
-        then published; no hand-over to the loop thread on the way."""
+        then published; no hand-over to the loop thread on the way. `only`: the robot whose key it came on."""
         engine = self.engine
         with engine.physics:
-            reply, states = run_guarded(lambda: self._advance(query.request), "world/advance",
+            reply, states = run_guarded(lambda: self._advance(query.request, only), "world/advance",
                                         lambda error: (self._advance_refusal(error), None))
             query.reply(reply)
             if states is not None:  # put by the publisher thread, while the client reads
                 engine.submit_states(states)
             self.take_snapshot()
 
-    def _advance(self, request: WorldAdvanceRequest) -> tuple[WorldAdvanceReply, list[States] | None]:
-        """(physics lock held) Every command checked first, then all applied, then one advance."""
+    def _advance(self, request: WorldAdvanceRequest,
+                 only: str | None = None) -> tuple[WorldAdvanceReply, list[States] | None]:
+        """(physics lock held) Every command checked first, then all applied, then one advance.
+
+        `only`: the request came on that robot's key, which authorises its entry alone; an entry for any other
+        robot refuses it whole, before anything else is looked at, and the reply carries that robot's states.
+        """
         engine = self.engine
+        if only is not None:
+            others = [robot for robot in request.commands if robot != only]
+            if others:
+                return self._advance_refusal(bounded(
+                    f"{Keys(only).world_advance} carries robot {only}'s command alone, not robot {others[0]!r}'s: "
+                    f"send the whole world's on {self.keys.world_advance} (a credential for the whole world); "
+                    "nothing was applied")), None
         if not engine.lockstep:
             return self._advance_refusal("world/advance works under --clock lockstep; this world runs in real time"), None
         if engine.paused:
@@ -170,7 +208,8 @@ class WorldEndpoint:
         world = engine.world
         return WorldAdvanceReply(ok=True, sim_time_s=world.sim_time_s, steps=world.steps,
                                  states={robot: RobotStates(joints=j, odom=o, imu=i)
-                                         for robot, (j, o, i) in zip(world.sims, states)}), states
+                                         for robot, (j, o, i) in zip(world.sims, states)
+                                         if only is None or robot == only}), states
 
     def _advance_refusal(self, error: str) -> WorldAdvanceReply:
         now = self.snapshot

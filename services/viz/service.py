@@ -16,6 +16,8 @@ Reads (under each robot's `zensim/{robot}/`):
 Writes (under the selected robot's `zensim/{robot}/`):
     cmd/joints (JointTargets): slider moves.
     ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode (gets): the panel's buttons.
+    zensim/{world}/world/pause, world/resume, world/step (gets, with --world): the pause, resume and step
+        buttons (a world's robots share one clock: a robot's own ctl/pause etc. refuse).
     alive/viz (liveliness token, one per robot shown).
 
 Threads: the tornado loop (main thread) owns the hub, the web server and what is shown;
@@ -50,6 +52,7 @@ from zensim.schemas import (
     Codec,
     CtlReply,
     JointTargets,
+    Keys,
     ModeRequest,
     PauseRequest,
     ResetRequest,
@@ -72,6 +75,8 @@ from .access import Guard
 from .web import Client, Hub, make_app
 
 logger = logging.getLogger(__name__)
+WORLD_CLOCK_VERBS = ("pause", "resume", "step")
+"""The buttons that act on a world's one clock: under `--world` they are the world's verbs."""
 ctl_logs = {verb: RateLimitedLog(logger) for verb in ("reset", "pause", "resume", "step", "mode")}
 """The line per control request a page sends, one limiter per verb: bounded, a page may send many."""
 world_wait_log = RateLimitedLog(logger, 30.0)
@@ -417,15 +422,18 @@ class VizService:
             "step": StepRequest(n=1),
         }.get(command.verb) or ModeRequest(mode=command.mode)  # type: ignore[arg-type]
         out: dict[str, Any] = {"type": "ctl_reply", "verb": command.verb}
+        key = feed.keys.ctl(command.verb)
+        if self.world is not None and command.verb in WORLD_CLOCK_VERBS:  # every robot's clock: the world's verb
+            key = getattr(Keys(self.world), f"world_{command.verb}")
         try:
-            raw = self._get_bytes(feed.keys.ctl(command.verb), Codec(type(request)).encode(request), STATE_CAP_BYTES)
+            raw = self._get_bytes(key, Codec(type(request)).encode(request), STATE_CAP_BYTES)
             reply = self._codecs[CtlReply].decode(raw)
         except (TimeoutError, ValueError, zenoh.ZError) as exc:
             out.update(ok=False, error=bounded(str(exc)))
             return out
         out.update(_bounded_texts(msgspec.to_builtins(reply)))
         out["type"] = "ctl_reply"
-        ctl_logs[command.verb].info("%sctl/%s -> ok=%s %s", feed.label, command.verb, reply.ok, reply.error or "")
+        ctl_logs[command.verb].info("%s%s -> ok=%s %s", feed.label, key.split("/", 2)[2], reply.ok, reply.error or "")
         return out
 
     def close(self) -> None:
