@@ -5,9 +5,12 @@ Reads:
     {robot}/state/sim          SimStatus: a new `run_id` is a restarted sim (perhaps another robot):
                                learn it again and publish robot_description anew
     {robot}/info/robot, info/urdf   the robot and its URDF
+    {robot}/alive/loco         whether a walking controller is up: without one a /cmd_vel Twist is refused
+    {robot}/state/loco         LocoStatus: whether it walks (a Twist to a standing controller is logged)
     ROS 2: the forward command, trajectory and /cmd_vel topics, on every transport
 Writes:
-    {robot}/cmd/joints         JointTargets, one per accepted command (the bridge clamps and slew-limits it)
+    {robot}/cmd/joints         JointTargets, one per accepted joint command (the bridge clamps and slew-limits it)
+    {robot}/cmd/velocity       VelocityCommand, one per accepted /cmd_vel Twist (for `zensim loco`)
     {robot}/state/ros2         Ros2Status at status_rate_hz
     {robot}/alive/ros2         liveliness token, once the robot is known
     ROS 2: robot_description (latched), joint_states, tf, odom, imu, clock
@@ -33,12 +36,13 @@ from zensim.common.robot_info import fetch_robot
 from zensim.common.ros_rules import InputError, P3dOdometry, RateGate, RobotJoints, xyzw
 from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
-from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros2Status, SimStatus, topics
-from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
+from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, LocoStatus, Odometry, Ros2Status, SimStatus,
+                            topics)
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, MIN_CAP_BYTES, vector_cap_bytes
 
 from . import messages as msg
 from .cdr import CdrError
-from .mapping import NO_WALKING, Ros2Names, check_twist, forward_command, namespace_of, trajectory_goal
+from .mapping import NO_WALKING, Ros2Names, forward_command, namespace_of, trajectory_goal, velocity_command
 from .rmw_zenoh import Qos
 from .settings import Ros2Settings
 from .transport import Publisher, Transport
@@ -126,8 +130,14 @@ class Gateway:
         self._robot: RobotJoints | None = None
         self._cap_bytes = 0
         self._codecs: dict[type, Codec[Any]] = {JointState: Codec(JointState), Odometry: Codec(Odometry),
-                                                Imu: Codec(Imu), SimStatus: Codec(SimStatus)}
+                                                Imu: Codec(Imu), SimStatus: Codec(SimStatus),
+                                                LocoStatus: Codec(LocoStatus)}
         self._gates = {name: RateGate(settings.state_rate_hz) for name in ("joints", "odom", "imu")}
+        self._loco_up = threading.Event()
+        """A walking controller's alive/loco token is up for this robot: /cmd_vel goes to it."""
+        self._loco_walking: bool | None = None
+        """Whether its newest state/loco says it walks (None: none heard yet)."""
+        self._walk_log = RateLimitedLog(logger, 10.0)
         # ROS 2 side: outputs, then inputs.
         self._description = Outputs(transports, names.robot_description, msg.STRING, LATCHED_QOS)
         self._joint_states = Outputs(transports, names.joint_states, msg.JOINT_STATE, STATE_QOS)
@@ -143,8 +153,13 @@ class Gateway:
                 transport.subscribe(topic, ros_type, self._command(topic, handle), self._bad(topic))
         # Zenoh side.
         self._targets = TypedPublisher.of(session, keys, topics.JOINT_TARGETS)
+        self._velocity = TypedPublisher.of(session, keys, topics.VELOCITY)
         self._status = TypedPublisher.of(session, keys, topics.ROS2_STATUS)
         self._subscribers: list[zenoh.Subscriber] = []
+        # Declared before the first Twist can come (history: a controller already up counts at once).
+        self._loco_alive = session.liveliness().declare_subscriber(keys.alive("loco"), self._on_loco_alive,
+                                                                   history=True)
+        self._loco_status = session.declare_subscriber(keys.loco_status, self._on_loco_status)
 
     def start(self, robot: RobotJoints, urdf: str) -> None:
         """Take the robot, publish robot_description, then start the flow of states."""
@@ -215,6 +230,23 @@ class Gateway:
             logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
             self.sim_restarted.set()
 
+    def _on_loco_alive(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            logger.info("a walking controller is up: %s goes to %s", self.names.cmd_vel, self._keys.velocity)
+            self._loco_up.set()
+        else:
+            logger.info("the walking controller is gone: %s is refused until one runs", self.names.cmd_vel)
+            self._loco_up.clear()
+            self._loco_walking = None
+
+    def _on_loco_status(self, sample: zenoh.Sample) -> None:
+        try:
+            status = decode_input(sample, self._codecs[LocoStatus], MIN_CAP_BYTES)
+        except DecodeError as exc:
+            self._state_log.warning("ignoring a bad LocoStatus on %s: %s", sample.key_expr, exc)
+            return
+        self._loco_walking = status.walking
+
     # --- ROS 2 -> zensim (zenoh threads, the DDS thread) -------------------------------------------
 
     def _bad(self, topic: str) -> Callable[[str], None]:
@@ -254,8 +286,17 @@ class Gateway:
         self._forward(trajectory_goal(robot, names, points))
 
     def _on_cmd_vel(self, robot: RobotJoints, data: bytes) -> None:
-        check_twist(*msg.read_twist(data))
-        raise InputError(NO_WALKING)
+        command = velocity_command(*msg.read_twist(data), self._settings.cmd_vel_timeout_s)
+        if not self._loco_up.is_set():
+            raise InputError(NO_WALKING)
+        if self._loco_walking is False:
+            # Passed on all the same: the controller keeps the newest and walks on it once asked to.
+            self._walk_log.warning("the walking controller is up but not walking: %s moves nothing until it walks "
+                                   "(ctl/loco {\"verb\": \"walk\"}, or `zensim loco --start walk`)", self.names.cmd_vel)
+        self._velocity.put(command)
+        with self._lock:
+            self.counters.commands_forwarded += 1
+            self.counters.last_command = time.monotonic()
 
     # --- status ------------------------------------------------------------------------------------
 
@@ -273,11 +314,13 @@ class Gateway:
         self._status.put(status)
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
+        for subscriber in (*self._subscribers, self._loco_status):
             subscriber.undeclare()
+        self._loco_alive.undeclare()
         for transport in self.transports:
             transport.close()
         self._targets.undeclare()
+        self._velocity.undeclare()
         self._status.undeclare()
 
 

@@ -44,7 +44,10 @@ class Ros2Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     trajectory_topic: str = "joint_trajectory_controller/joint_trajectory"
     """trajectory_msgs/JointTrajectory in: its last point's positions for its named joints."""
     cmd_vel_topic: str = "cmd_vel"
-    """geometry_msgs/Twist in: checked and refused (counted) while no walking service runs."""
+    """geometry_msgs/Twist in: linear x, y and angular z to the walking controller (cmd/velocity, `zensim loco`);
+    refused (counted) while none is up."""
+    cmd_vel_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=60)] = 0.5
+    """Sim time each /cmd_vel holds: the robot stops this long after the last one (`ros2 topic pub -r 10`)."""
     world_frame: str = "world"
     """Fixed frame of the odometry and the TF."""
     base_frame: str = "pelvis"
