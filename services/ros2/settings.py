@@ -23,8 +23,13 @@ class Ros2Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     router), `dds` (Cyclone DDS, for Fast DDS and Cyclone DDS nodes), or both."""
     domain_id: Annotated[int, msgspec.Meta(ge=0, le=232)] = 0
     """ROS domain id (what ROS 2 nodes set in ROS_DOMAIN_ID), for both transports."""
+    world: str = ""
+    """A world's id (`zensim sim --world`): serve every robot it lists (world/info), each as a node
+    `zensim_{robot}` under the namespace of its id (`/g1a/joint_states`) with its frames prefixed
+    (`g1a/pelvis`); /tf and /clock stay shared. Empty: the one robot of --robot-id."""
     namespace: str = ""
-    """ROS namespace of the robot's topics; empty: the root (`/joint_states`)."""
+    """ROS namespace of the robot's topics; empty: the root (`/joint_states`). With --world, the robots'
+    namespaces go under it."""
     node_name: str = ""
     """ROS node name; empty: `zensim_{robot_id}`."""
     robot_description_topic: str = "robot_description"
