@@ -197,7 +197,7 @@ WORLD_INFO: Final = Topic("world/info", "queryable", "sim (a world)", "viz (`--w
 APPLIED: Final = Topic("state/applied", "publication", "sim", "anyone (the recorder, resim)",
                        "one per lockstep advance", AppliedCommand, name="applied")
 # --- walking: `zensim loco` ---------------------------------------------------------
-VELOCITY: Final = Topic("cmd/velocity", "publication", "any client, unitree (LocoClient), ros1 (/cmd_vel), viz (keys, gamepad)",
+VELOCITY: Final = Topic("cmd/velocity", "publication", "any client, unitree (LocoClient), ros1 and ros2 (/cmd_vel), viz (keys, gamepad)",
                         "loco", "any; latest wins; lapses after `timeout_s` of sim time", VelocityCommand,
                         note="(vx, vy m/s, wz rad/s in the heading frame)", name="velocity")
 ARMS: Final = Topic("cmd/arms", "publication", "unitree (rt/arm_sdk), any client", "loco", "any; the newest holds",
@@ -290,7 +290,7 @@ ROLES: Final[tuple[Role, ...]] = (
     Role("unitree", "service", "the Unitree DDS adapter (its sport service forwards to `zensim loco`)", publishes=("cmd/motors", "state/unitree", "cmd/velocity", "cmd/arms"), subscribes=("state/**", "cmd/remote"), queries=("info/**", "ctl/loco"), tokens=("alive/unitree",)),
     Role("loco", "service", "the walking controller", publishes=("cmd/motors", "state/loco"), subscribes=("state/**", "cmd/velocity", "cmd/arms"), serves=("ctl/loco",), queries=("info/**",), tokens=("alive/loco",)),
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1", "cmd/velocity"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
-    Role("ros2", "service", "the ROS 2 face (the bridge-facing side; its ROS 2 keys: docs/security.md)", publishes=("cmd/joints", "state/ros2"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros2",), ros2="write"),
+    Role("ros2", "service", "the ROS 2 face (the bridge-facing side; its ROS 2 keys: docs/security.md)", publishes=("cmd/joints", "state/ros2", "cmd/velocity"), subscribes=("state/**",), queries=("info/**", "world/info"), tokens=("alive/ros2",), ros2="write"),
     Role("recorder", "service", "`zensim record`", subscribes=("**",), queries=("info/**",)),
     Role("replay", "service", "`zensim replay`: stands in for the sim", publishes=("state/**",), serves=("info/**",), tokens=("alive/sim", "alive/replay", "claim/*")),
     Role("operator", "client", "people and tools that drive the robot", publishes=("cmd/**",), subscribes=("**",), queries=("ctl/*", "info/**", "world/*"), ros2="write"),

@@ -2,8 +2,10 @@
 own with .venv-ros2's Python (ros2.py finds it): the wheels' Python packages (sensor_msgs, ...) share their
 names with Debian's ROS 1 packages, so they never load into the test process or the project's venv.
 
-    ros2_node.py echo SECONDS                subscribe the robot's topics over DDS; one JSON line per message
-    ros2_node.py forward SECONDS V1,V2,...   publish std_msgs/Float64MultiArray at 50 Hz
+    ros2_node.py echo SECONDS [NS ...]       subscribe the robot's topics over DDS (in each namespace NS, e.g.
+                                             /g1a: /g1a/joint_states; default the root); one JSON line per message
+    ros2_node.py forward SECONDS V1,V2,... [TOPIC]   publish std_msgs/Float64MultiArray at 50 Hz (default topic
+                                             /forward_position_controller/commands)
     ros2_node.py twist SECONDS VX WZ         publish geometry_msgs/Twist at 50 Hz
     ros2_node.py serialize                   stdin: JSON lines {"type", fields...} -> stdout: the CDR as hex
                                              (rclpy's serialize_message)
@@ -107,16 +109,17 @@ def decode(spec: dict) -> dict:
     return to_json(deserialize_message(data, message_class(name)))
 
 
-def echo(seconds: float) -> None:
+def echo(seconds: float, namespaces: list[str]) -> None:
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     rclpy.init()
     node = rclpy.create_node("zensim_test_node")
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL, reliability=ReliabilityPolicy.RELIABLE)
-    for topic, kind, qos in (("/joint_states", "sensor_msgs/msg/JointState", 10), ("/odom", "nav_msgs/msg/Odometry", 10),
-                             ("/imu", "sensor_msgs/msg/Imu", 10), ("/clock", "rosgraph_msgs/msg/Clock", 10),
-                             ("/robot_description", "std_msgs/msg/String", latched)):
+    per_robot = (("/joint_states", "sensor_msgs/msg/JointState", 10), ("/odom", "nav_msgs/msg/Odometry", 10),
+                 ("/imu", "sensor_msgs/msg/Imu", 10), ("/robot_description", "std_msgs/msg/String", latched))
+    topics = [(ns.rstrip("/") + topic, kind, qos) for ns in namespaces or [""] for topic, kind, qos in per_robot]
+    for topic, kind, qos in [*topics, ("/clock", "rosgraph_msgs/msg/Clock", 10)]:
         node.create_subscription(message_class(kind), topic,
                                  lambda m, topic=topic: print(json.dumps({"topic": topic, **to_json(m)}), flush=True),
                                  qos)
@@ -147,9 +150,9 @@ def publish(seconds: float, topic: str, message, rate_hz: float) -> None:  # noq
 def main(args: list[str]) -> None:
     command = args[0]
     if command == "echo":
-        echo(float(args[1]))
+        echo(float(args[1]), args[2:])
     elif command == "forward":
-        publish(float(args[1]), "/forward_position_controller/commands",
+        publish(float(args[1]), args[3] if len(args) > 3 else "/forward_position_controller/commands",
                 build({"type": "std_msgs/msg/Float64MultiArray", "data": args[2].split(",")}), 50)
     elif command == "twist":
         publish(float(args[1]), "/cmd_vel",

@@ -16,7 +16,7 @@ import ros2_client
 from zensim.common.ros_rules import InputError, RobotJoints
 from zensim.ros2 import messages as msg
 from zensim.ros2.cdr import CdrError, CdrReader
-from zensim.ros2.mapping import Ros2Names, check_twist, forward_command, trajectory_goal
+from zensim.ros2.mapping import Ros2Names, forward_command, trajectory_goal, velocity_command
 from zensim.ros2.rmw_zenoh import Node, Qos, attachment, data_key, mangle, read_attachment
 
 ROBOT = RobotJoints(names=("hip", "knee", "elbow"), q_min=(-1.0, 0.0, -2.0), q_max=(1.0, 2.5, 2.0), run_id="r",
@@ -157,8 +157,11 @@ def test_a_trajectory_goes_to_its_last_point():
             trajectory_goal(ROBOT, names, pts)
 
 
-def test_a_twist_must_be_finite_and_sane():
-    check_twist((0.5, 0.0, 0.0), (0.0, 0.0, 0.3))
-    for linear, angular in (((math.nan, 0, 0), (0, 0, 0)), ((0, 0, 0), (0, 0, math.inf)), ((1e3, 0, 0), (0, 0, 0))):
+def test_a_twist_becomes_the_walking_controllers_velocity_or_is_refused_whole():
+    """linear x, y and angular z are the walk; a NaN or an absurd value anywhere refuses all of it."""
+    command = velocity_command((0.5, -0.2, 0.0), (0.0, 0.0, 0.3), 0.5)
+    assert (command.vx, command.vy, command.wz, command.timeout_s) == (0.5, -0.2, 0.3, 0.5)
+    for linear, angular in (((math.nan, 0, 0), (0, 0, 0)), ((0, 0, 0), (0, 0, math.inf)), ((1e3, 0, 0), (0, 0, 0)),
+                            ((0.4, 0, math.nan), (0, 0, 0)), ((0.4, 0, 0), (1e9, 0, 0))):
         with pytest.raises(InputError):
-            check_twist(linear, angular)
+            velocity_command(linear, angular, 0.5)

@@ -3,7 +3,9 @@
 - ROS names: a name resolved in the robot's namespace.
 - Inputs from ROS: joint positions checked whole against the robot (finite, known joints, within the
   joint's limits, one position per name); they become the JointTargets the bridge gets, or an
-  `InputError` saying why, and nothing of a refused message is passed on.
+  `InputError` saying why, and nothing of a refused message is passed on. A geometry_msgs/Twist on
+  /cmd_vel is checked whole the same way (all six components finite and within MAX_TWIST) and becomes
+  the VelocityCommand the walking controller (`zensim loco`) gets: linear x, y and angular z.
 - Outputs to ROS: at most a rate of sim time, the odometry as Gazebo's p3d plugin gives it, quaternions
   in ROS's x, y, z, w order.
 """
@@ -14,10 +16,16 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from zensim.schemas import JointTargets, Odometry, RobotInfo
+from zensim.schemas import JointTargets, Odometry, RobotInfo, VelocityCommand
+from zensim.schemas.messages import MAX_VELOCITY
 
 LIMIT_SLACK_RAD = 1e-9
 """A position this far past a limit still counts as inside it (a GUI slider at its end, after rounding)."""
+
+
+MAX_TWIST = MAX_VELOCITY
+"""Largest |linear| (m/s) or |angular| (rad/s) component a Twist may ask for: finite is not sane. The
+walking controller clips what it gets to its robot's range (the G1: 1 m/s); beyond this is absurd."""
 
 
 class InputError(ValueError):
@@ -78,6 +86,23 @@ class RobotJoints:
             raise InputError(f"unknown joint(s): {shown}")
         q = tuple(self.check_position(name, value) for name, value in zip(names, positions))
         return JointTargets(names=tuple(names), q=q)
+
+
+def velocity_command(linear: Sequence[float], angular: Sequence[float], timeout_s: float) -> VelocityCommand:
+    """A /cmd_vel Twist (its linear and angular x, y, z) as the walking controller's VelocityCommand.
+
+    Every component is checked, the ones the walk ignores (linear z, angular x and y) too: a Twist with a
+    NaN anywhere is a broken sender, and none of it is passed on. Held `timeout_s` of sim time.
+    """
+    for value in (*linear, *angular):
+        if not math.isfinite(value):
+            raise InputError(f"a Twist with a value that is not finite ({value})")
+        if abs(value) > MAX_TWIST:
+            raise InputError(f"a Twist component of {value:.6g} (at most {MAX_TWIST:g} m/s or rad/s)")
+    try:
+        return VelocityCommand(vx=float(linear[0]), vy=float(linear[1]), wz=float(angular[2]), timeout_s=timeout_s)
+    except ValueError as exc:  # the schema's own checks (a bad timeout setting cannot pass the settings')
+        raise InputError(str(exc)) from None
 
 
 class RateGate:

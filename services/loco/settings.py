@@ -20,4 +20,4 @@ class LocoSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     """How long each query of the sim's info/robot waits before it is retried, s."""
     start: LocoVerb | None = None
     """A walking verb run as soon as the robot is known (`walk`: stand up, then walk on cmd/velocity, for
-    front ends that only send velocities: ROS 1's /cmd_vel); empty: passive until the first request."""
+    front ends that only send velocities: ROS's /cmd_vel); empty: passive until the first request."""

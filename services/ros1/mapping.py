@@ -3,7 +3,9 @@
 - ROS names: the settings' topic names resolved in the robot's namespace.
 - Inputs from ROS: a per-joint Float64 or the GUI's JointState is checked whole against the robot
   (finite, known joints, within the joint's limits, one position per name) and becomes the value the
-  bridge gets, or an `InputError` saying why; nothing of a refused message is passed on.
+  bridge gets, or an `InputError` saying why; nothing of a refused message is passed on. A /cmd_vel
+  Twist becomes the walking controller's VelocityCommand by the rule `zensim ros2` shares
+  (common/ros_rules.py `velocity_command`); the CommandGate below then sheds a flood of them.
 - Outputs to ROS: the odometry as Gazebo's p3d plugin gives it, quaternions reordered to ROS's x, y, z, w.
 - The URDF for robot_description, its mesh references pointed at the gateway's http server.
 """
@@ -24,6 +26,7 @@ from zensim.common.ros_rules import (  # noqa: F401 - re-exported
     RobotJoints,
     resolve,
     rotate,
+    velocity_command,
     xyzw,
 )
 from zensim.schemas import JointTargets

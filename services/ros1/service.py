@@ -53,7 +53,7 @@ from zensim.schemas import (Codec, DecodeError, Imu, JointState, JointTargets, K
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
 
 from .mapping import (CommandGate, GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, resolve,
-                      with_mesh_urls, xyzw)
+                      velocity_command, with_mesh_urls, xyzw)
 from .meshserver import MeshServer
 from .settings import Ros1Settings
 
@@ -342,10 +342,11 @@ class Gateway:
         """The classic /cmd_vel: linear x, y and angular z to the walking controller (`zensim loco`)."""
         with self._lock:
             self.counters.commands_received += 1
-        try:
-            command = VelocityCommand(vx=message.linear.x, vy=message.linear.y, wz=message.angular.z,
-                                      timeout_s=self._settings.cmd_vel_timeout_s)
-        except (ValueError, TypeError) as exc:  # NaN, absurd: the schema's own checks
+        try:  # the rule `zensim ros2` applies too (common/ros_rules.py): NaN or absurd anywhere, refused whole
+            linear, angular = message.linear, message.angular
+            command = velocity_command((linear.x, linear.y, linear.z), (angular.x, angular.y, angular.z),
+                                       self._settings.cmd_vel_timeout_s)
+        except (InputError, TypeError) as exc:
             self.refusals.refuse(self._cmd_vel_topic, str(exc))
             return
         self._offer(CMD_VEL_KEY, command)  # shed like the joint commands: a Twist flood is one put per period

@@ -8,24 +8,25 @@ in zensim.common.ros_rules; here is what is ROS 2's own:
   joint order (the order of /joint_states), all of them or none;
 - a trajectory_msgs/JointTrajectory: its last point is where the joints go (the bridge's slew limit
   then takes them there; zensim does not interpolate the points in between);
-- geometry_msgs/Twist on /cmd_vel: checked, then refused while no walking service runs (docs/ros.md).
+- geometry_msgs/Twist on /cmd_vel: the rule the ROS 1 gateway applies too (ros_rules.velocity_command:
+  every component finite and within MAX_TWIST, linear x, y and angular z become the walking controller's
+  VelocityCommand on cmd/velocity); while no walking controller is up (no `alive/loco` token for the
+  robot) a Twist is refused with NO_WALKING, so the user reads why nothing moves.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final
 
-from zensim.common.ros_rules import InputError, RobotJoints, resolve
+from zensim.common.ros_rules import MAX_TWIST, InputError, RobotJoints, resolve, velocity_command  # noqa: F401 - re-exported
 from zensim.schemas import JointTargets
 
 from .messages import TrajectoryPoint
 
-MAX_TWIST: Final = 10.0
-"""Largest |linear| (m/s) or |angular| (rad/s) component a Twist may ask for: finite is not sane."""
-NO_WALKING: Final = "no walking service runs in this zensim: /cmd_vel moves nothing (docs/ros.md)"
+NO_WALKING: Final = ("no walking controller is up for this robot (start `zensim loco --start walk`, or "
+                     "`zensim up --loco`): /cmd_vel moves nothing (docs/ros.md)")
 
 
 def namespace_of(namespace: str) -> str:
@@ -83,12 +84,3 @@ def trajectory_goal(robot: RobotJoints, names: Sequence[str], points: Sequence[T
     if len(last.positions) != len(names):
         raise InputError(f"the last point has {len(last.positions)} positions for {len(names)} joint names")
     return robot.joint_targets(names, last.positions)
-
-
-def check_twist(linear: Sequence[float], angular: Sequence[float]) -> None:
-    """InputError for a Twist no robot should be asked for: not finite, or beyond MAX_TWIST."""
-    for value in (*linear, *angular):
-        if not math.isfinite(value):
-            raise InputError(f"a Twist with a value that is not finite ({value})")
-        if abs(value) > MAX_TWIST:
-            raise InputError(f"a Twist component of {value:.6g} (at most {MAX_TWIST:g} m/s or rad/s)")

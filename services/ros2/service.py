@@ -5,12 +5,20 @@ Reads:
     {robot}/state/sim          SimStatus: a new `run_id` is a restarted sim (perhaps another robot):
                                learn it again and publish robot_description anew
     {robot}/info/robot, info/urdf   the robot and its URDF
+    {world}/world/info         with --world: the world's robots, each served as above under its own keys
+    {robot}/alive/loco         whether a walking controller is up: without one a /cmd_vel Twist is refused
+    {robot}/state/loco         LocoStatus: whether it walks (a Twist to a standing controller is logged)
     ROS 2: the forward command, trajectory and /cmd_vel topics, on every transport
 Writes:
-    {robot}/cmd/joints         JointTargets, one per accepted command (the bridge clamps and slew-limits it)
+    {robot}/cmd/joints         JointTargets, one per accepted joint command (the bridge clamps and slew-limits it)
+    {robot}/cmd/velocity       VelocityCommand, one per accepted /cmd_vel Twist (for `zensim loco`)
     {robot}/state/ros2         Ros2Status at status_rate_hz
     {robot}/alive/ros2         liveliness token, once the robot is known
     ROS 2: robot_description (latched), joint_states, tf, odom, imu, clock
+
+With --world, one process serves every robot of a world: one Face (a Gateway and its alive/ros2 token)
+per robot, each its own rmw_zenoh node in the namespace of its id with its frames prefixed, all on one
+DDS participant; the first robot's face alone publishes /clock (the world's time is one).
 
 Each ROS 2 message is built once (messages.py: CDR bytes) and handed to every transport. Outputs go
 out on zenoh's callback threads as each state arrives; commands come in on zenoh's callback threads
@@ -20,12 +28,14 @@ zenoh at once. A flood of commands is shed beyond COMMAND_RATE_HZ before it is d
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, Final
 
+import msgspec
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
@@ -33,12 +43,13 @@ from zensim.common.robot_info import fetch_robot
 from zensim.common.ros_rules import InputError, P3dOdometry, RateGate, RobotJoints, xyzw
 from zensim.common.session import StartupError
 from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
-from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, Odometry, Ros2Status, SimStatus, topics
-from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
+from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, LocoStatus, Odometry, Ros2Status, SimStatus,
+                            WorldInfo, topics)
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, INFO_CAP_BYTES, MIN_CAP_BYTES, vector_cap_bytes
 
 from . import messages as msg
 from .cdr import CdrError
-from .mapping import NO_WALKING, Ros2Names, check_twist, forward_command, namespace_of, trajectory_goal
+from .mapping import NO_WALKING, Ros2Names, forward_command, namespace_of, trajectory_goal, velocity_command
 from .rmw_zenoh import Qos
 from .settings import Ros2Settings
 from .transport import Publisher, Transport
@@ -111,7 +122,7 @@ class Gateway:
     """The running face (see the module docstring)."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, settings: Ros2Settings, names: Ros2Names,
-                 transports: list[Transport]) -> None:
+                 transports: list[Transport], publish_clock: bool = True) -> None:
         self._session = session
         self._keys = keys
         self._settings = settings
@@ -126,12 +137,19 @@ class Gateway:
         self._robot: RobotJoints | None = None
         self._cap_bytes = 0
         self._codecs: dict[type, Codec[Any]] = {JointState: Codec(JointState), Odometry: Codec(Odometry),
-                                                Imu: Codec(Imu), SimStatus: Codec(SimStatus)}
+                                                Imu: Codec(Imu), SimStatus: Codec(SimStatus),
+                                                LocoStatus: Codec(LocoStatus)}
         self._gates = {name: RateGate(settings.state_rate_hz) for name in ("joints", "odom", "imu")}
+        self._loco_up = threading.Event()
+        """A walking controller's alive/loco token is up for this robot: /cmd_vel goes to it."""
+        self._loco_walking: bool | None = None
+        """Whether its newest state/loco says it walks (None: none heard yet)."""
+        self._walk_log = RateLimitedLog(logger, 10.0)
         # ROS 2 side: outputs, then inputs.
         self._description = Outputs(transports, names.robot_description, msg.STRING, LATCHED_QOS)
         self._joint_states = Outputs(transports, names.joint_states, msg.JOINT_STATE, STATE_QOS)
-        self._clock = Outputs(transports, names.clock, msg.CLOCK, STATE_QOS)
+        # The robots of a world share one clock: only one face publishes it.
+        self._clock = Outputs(transports if publish_clock else [], names.clock, msg.CLOCK, STATE_QOS)
         self._tf = Outputs(transports, names.tf, msg.TF_MESSAGE, Qos(depth=100))  # tf2's listener depth
         self._odom = Outputs(transports, names.odom, msg.ODOMETRY, STATE_QOS)
         self._imu = Outputs(transports, names.imu, msg.IMU, STATE_QOS)
@@ -143,8 +161,13 @@ class Gateway:
                 transport.subscribe(topic, ros_type, self._command(topic, handle), self._bad(topic))
         # Zenoh side.
         self._targets = TypedPublisher.of(session, keys, topics.JOINT_TARGETS)
+        self._velocity = TypedPublisher.of(session, keys, topics.VELOCITY)
         self._status = TypedPublisher.of(session, keys, topics.ROS2_STATUS)
         self._subscribers: list[zenoh.Subscriber] = []
+        # Declared before the first Twist can come (history: a controller already up counts at once).
+        self._loco_alive = session.liveliness().declare_subscriber(keys.alive("loco"), self._on_loco_alive,
+                                                                   history=True)
+        self._loco_status = session.declare_subscriber(keys.loco_status, self._on_loco_status)
 
     def start(self, robot: RobotJoints, urdf: str) -> None:
         """Take the robot, publish robot_description, then start the flow of states."""
@@ -215,6 +238,23 @@ class Gateway:
             logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
             self.sim_restarted.set()
 
+    def _on_loco_alive(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            logger.info("a walking controller is up: %s goes to %s", self.names.cmd_vel, self._keys.velocity)
+            self._loco_up.set()
+        else:
+            logger.info("the walking controller is gone: %s is refused until one runs", self.names.cmd_vel)
+            self._loco_up.clear()
+            self._loco_walking = None
+
+    def _on_loco_status(self, sample: zenoh.Sample) -> None:
+        try:
+            status = decode_input(sample, self._codecs[LocoStatus], MIN_CAP_BYTES)
+        except DecodeError as exc:
+            self._state_log.warning("ignoring a bad LocoStatus on %s: %s", sample.key_expr, exc)
+            return
+        self._loco_walking = status.walking
+
     # --- ROS 2 -> zensim (zenoh threads, the DDS thread) -------------------------------------------
 
     def _bad(self, topic: str) -> Callable[[str], None]:
@@ -254,8 +294,17 @@ class Gateway:
         self._forward(trajectory_goal(robot, names, points))
 
     def _on_cmd_vel(self, robot: RobotJoints, data: bytes) -> None:
-        check_twist(*msg.read_twist(data))
-        raise InputError(NO_WALKING)
+        command = velocity_command(*msg.read_twist(data), self._settings.cmd_vel_timeout_s)
+        if not self._loco_up.is_set():
+            raise InputError(NO_WALKING)
+        if self._loco_walking is False:
+            # Passed on all the same: the controller keeps the newest and walks on it once asked to.
+            self._walk_log.warning("the walking controller is up but not walking: %s moves nothing until it walks "
+                                   "(ctl/loco {\"verb\": \"walk\"}, or `zensim loco --start walk`)", self.names.cmd_vel)
+        self._velocity.put(command)
+        with self._lock:
+            self.counters.commands_forwarded += 1
+            self.counters.last_command = time.monotonic()
 
     # --- status ------------------------------------------------------------------------------------
 
@@ -273,11 +322,14 @@ class Gateway:
         self._status.put(status)
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
+        for subscriber in (*self._subscribers, self._loco_status):
             subscriber.undeclare()
+        self._loco_alive.undeclare()
         for transport in self.transports:
-            transport.close()
+            if transport.name != "dds":  # shared by every robot of a world: run() closes it
+                transport.close()
         self._targets.undeclare()
+        self._velocity.undeclare()
         self._status.undeclare()
 
 
@@ -297,73 +349,155 @@ def read_urdf(session: zenoh.Session, keys: Keys, timeout_s: float) -> str:
     raise LookupError(f"no reply on {keys.urdf} within {timeout_s} s")
 
 
-def open_transports(session: zenoh.Session, settings: Ros2Settings, node_name: str) -> list[Transport]:
-    """The transports the settings name (the DDS one only when asked for: it loads Cyclone DDS)."""
-    chosen = settings.transports.split(",")
-    transports: list[Transport] = []
-    if "zenoh" in chosen:
-        from .zenoh_edge import ZenohEdge
+def world_robots(session: zenoh.Session, world: str, timeout_s: float, stop: threading.Event) -> list[str] | None:
+    """The robot ids a world's world/info lists, asked until it answers (None: stopped first)."""
+    key = Keys(world).world_info
+    codec = Codec(WorldInfo)
+    waiting = RateLimitedLog(logger, 10.0)
+    while not stop.is_set():
+        for reply in session.get(key, timeout=timeout_s):
+            if reply.ok is None:
+                waiting.warning("%s: %s", key, error_text(reply.err))
+                continue
+            try:
+                info = codec.decode(*read_payload(reply.ok, INFO_CAP_BYTES))
+            except DecodeError as exc:
+                raise StartupError(f"{key} answered something that is not a WorldInfo: {exc}") from None
+            return [robot.robot for robot in info.robots]
+        waiting.info("no world %r answers on %s yet (zensim sim --world): asking again", world, key)
+        stop.wait(timeout_s)
+    return None
 
-        transports.append(ZenohEdge(session, settings.domain_id, namespace_of(settings.namespace), node_name,
-                                    INPUT_CAP_BYTES, settings.humble))
-    if "dds" in chosen:
+
+def robot_settings(settings: Ros2Settings, robot_id: str) -> Ros2Settings:
+    """One robot of a world as a face of its own: its id, its namespace and node, its frames prefixed."""
+    ros_name = robot_id.replace("-", "_")
+    return msgspec.structs.replace(
+        settings, robot_id=robot_id, namespace=f"{settings.namespace.strip('/')}/{ros_name}".strip("/"),
+        node_name=f"{settings.node_name or 'zensim'}_{ros_name}",
+        base_frame=f"{ros_name}/{settings.base_frame}", imu_frame=f"{ros_name}/{settings.imu_frame}")
+
+
+class Face:
+    """One robot's face: its gateway and its liveliness token."""
+
+    def __init__(self, session: zenoh.Session, settings: Ros2Settings, transports: list[Transport],
+                 publish_clock: bool) -> None:
+        self.settings = settings
+        self.keys = Keys(settings.robot_id)
         try:
-            from .dds_edge import DdsEdge
-        except ImportError as exc:
-            raise StartupError(f"the DDS transport needs the Cyclone DDS binding ({exc}): install the `unitree` "
-                               "extra (docs/unitree.md) or run with --transports zenoh") from None
-        transports.append(DdsEdge(settings.domain_id, settings.dds_interface, INPUT_CAP_BYTES))
-    return transports
+            names = names_of(settings)
+        except ValueError as exc:
+            raise StartupError(f"robot {settings.robot_id!r}: {exc}") from None
+        self.gateway = Gateway(session, self.keys, settings, names, transports, publish_clock)
+        self.token: zenoh.LivelinessToken | None = None
+        self.seq = 0
+        self.last_count, self.last_time = 0, time.monotonic()
+
+    def start(self, session: zenoh.Session, stop: threading.Event) -> bool:
+        """Learn the robot and start the flow (False: stopped first)."""
+        robot = fetch_robot(session, self.keys, self.settings.info_timeout_s, stop, RobotJoints.from_info, logger)
+        if robot is None:
+            return False
+        try:
+            urdf = read_urdf(session, self.keys, self.settings.info_timeout_s)
+        except LookupError as exc:
+            raise StartupError(f"cannot read the robot's URDF: {exc}") from None
+        self.gateway.start(robot, urdf)
+        self.token = session.liveliness().declare_token(self.keys.alive("ros2"))
+        logger.info("ros2 face up: node %s in %s, domain %d on %s; %s, %s", node_name_of(self.settings),
+                    self.gateway.names.namespace, self.settings.domain_id, self.settings.transports,
+                    self.gateway.names.joint_states, self.gateway.names.forward_command)
+        return True
+
+    def tick(self, session: zenoh.Session, stop: threading.Event) -> bool:
+        """Learn a restarted sim's robot again, then publish the status (False: stopped while learning)."""
+        gateway = self.gateway
+        if gateway.sim_restarted.is_set():
+            robot = fetch_robot(session, self.keys, self.settings.info_timeout_s, stop, RobotJoints.from_info, logger)
+            if robot is None:
+                return False
+            try:
+                gateway.adopt(robot, read_urdf(session, self.keys, self.settings.info_timeout_s))
+            except LookupError as exc:
+                logger.warning("the restarted sim's URDF: %s; asking again", exc)
+        now = time.monotonic()
+        count = gateway.counters.joint_states_published
+        gateway.publish_status(self.seq, (count - self.last_count) / max(now - self.last_time, 1e-9))
+        self.last_count, self.last_time = count, now
+        self.seq += 1
+        return True
+
+    def close(self) -> None:
+        if self.token is not None:
+            self.token.undeclare()
+        self.gateway.close()
+        c = self.gateway.counters
+        logger.info("%s: %d ROS 2 commands read, %d forwarded, %d rejected; %d joint states published",
+                    self.settings.robot_id, c.commands_received, c.commands_forwarded, self.gateway.refusals.count,
+                    c.joint_states_published)
+
+
+def node_name_of(settings: Ros2Settings) -> str:
+    return settings.node_name or f"zensim_{settings.robot_id.replace('-', '_')}"
+
+
+def open_dds(settings: Ros2Settings) -> Transport | None:
+    """The DDS transport when the settings name it (one participant for every robot: it loads Cyclone DDS)."""
+    if "dds" not in settings.transports.split(","):
+        return None
+    try:
+        from .dds_edge import DdsEdge
+    except ImportError as exc:
+        raise StartupError(f"the DDS transport needs the Cyclone DDS binding ({exc}): install the `unitree` "
+                           "extra (docs/unitree.md) or run with --transports zenoh") from None
+    return DdsEdge(settings.domain_id, settings.dds_interface, INPUT_CAP_BYTES)
+
+
+def open_zenoh(session: zenoh.Session, settings: Ros2Settings, ids: Iterator[int]) -> Transport | None:
+    """One robot's node on rmw_zenoh's keys, when the settings name the Zenoh transport."""
+    if "zenoh" not in settings.transports.split(","):
+        return None
+    from .zenoh_edge import ZenohEdge
+
+    return ZenohEdge(session, settings.domain_id, namespace_of(settings.namespace), node_name_of(settings),
+                     INPUT_CAP_BYTES, settings.humble, ids)
 
 
 def run(session: zenoh.Session, settings: Ros2Settings, stop: threading.Event) -> int:
-    """Learn the robot, join the ROS 2 graph on each transport, map until `stop` is set.
+    """Learn the robot (or every robot of the world), join the ROS 2 graph on each transport, map until
+    `stop` is set.
 
     Returns:
         The process exit code.
     """
-    keys = Keys(settings.robot_id)
+    if settings.world:
+        logger.info("asking world %r for its robots", settings.world)
+        robot_ids = world_robots(session, settings.world, settings.info_timeout_s, stop)
+        if robot_ids is None:
+            return 0
+        per_robot = [robot_settings(settings, robot_id) for robot_id in robot_ids]
+        logger.info("world %r: serving %s", settings.world, ", ".join(robot_ids))
+    else:
+        per_robot = [settings]
+    dds = open_dds(settings)
+    ids = itertools.count(0)
+    faces: list[Face] = []
     try:
-        names = names_of(settings)
-    except ValueError as exc:
-        raise StartupError(str(exc)) from None
-    logger.info("asking the sim on %s", keys.robot_info)
-    robot = fetch_robot(session, keys, settings.info_timeout_s, stop, RobotJoints.from_info, logger)
-    if robot is None:
-        return 0
-    try:
-        urdf = read_urdf(session, keys, settings.info_timeout_s)
-    except LookupError as exc:
-        raise StartupError(f"cannot read the robot's URDF: {exc}") from None
-    node_name = settings.node_name or f"zensim_{settings.robot_id.replace('-', '_')}"
-    transports = open_transports(session, settings, node_name)
-    gateway = Gateway(session, keys, settings, names, transports)
-    gateway.start(robot, urdf)
-    token = session.liveliness().declare_token(keys.alive("ros2"))
-    logger.info("ros2 face up: node %s in %s, domain %d on %s; %s, %s", node_name, names.namespace,
-                settings.domain_id, settings.transports, names.joint_states, names.forward_command)
-    period_s = 1.0 / settings.status_rate_hz
-    seq = 0
-    last_count, last_time = 0, time.monotonic()
-    try:
+        for i, robot in enumerate(per_robot):
+            transports = [t for t in (open_zenoh(session, robot, ids), dds) if t is not None]
+            faces.append(Face(session, robot, transports, publish_clock=i == 0))  # one /clock: the world's
+        for face in faces:
+            logger.info("asking the sim on %s", face.keys.robot_info)
+            if not face.start(session, stop):
+                return 0
+        period_s = 1.0 / settings.status_rate_hz
         while not stop.wait(period_s):
-            if gateway.sim_restarted.is_set():
-                robot = fetch_robot(session, keys, settings.info_timeout_s, stop, RobotJoints.from_info, logger)
-                if robot is None:
-                    break
-                try:
-                    gateway.adopt(robot, read_urdf(session, keys, settings.info_timeout_s))
-                except LookupError as exc:
-                    logger.warning("the restarted sim's URDF: %s; asking again", exc)
-            now = time.monotonic()
-            count = gateway.counters.joint_states_published
-            gateway.publish_status(seq, (count - last_count) / (now - last_time))
-            last_count, last_time = count, now
-            seq += 1
+            if not all(face.tick(session, stop) for face in faces):
+                break
     finally:
-        token.undeclare()
-        gateway.close()
-    c = gateway.counters
-    logger.info("%d ROS 2 commands read, %d forwarded, %d rejected; %d joint states published",
-                c.commands_received, c.commands_forwarded, gateway.refusals.count, c.joint_states_published)
+        for face in faces:
+            face.close()
+        if dds is not None:
+            dds.close()
     return 0

@@ -23,8 +23,13 @@ class Ros2Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     router), `dds` (Cyclone DDS, for Fast DDS and Cyclone DDS nodes), or both."""
     domain_id: Annotated[int, msgspec.Meta(ge=0, le=232)] = 0
     """ROS domain id (what ROS 2 nodes set in ROS_DOMAIN_ID), for both transports."""
+    world: str = ""
+    """A world's id (`zensim sim --world`): serve every robot it lists (world/info), each as a node
+    `zensim_{robot}` under the namespace of its id (`/g1a/joint_states`) with its frames prefixed
+    (`g1a/pelvis`); /tf and /clock stay shared. Empty: the one robot of --robot-id."""
     namespace: str = ""
-    """ROS namespace of the robot's topics; empty: the root (`/joint_states`)."""
+    """ROS namespace of the robot's topics; empty: the root (`/joint_states`). With --world, the robots'
+    namespaces go under it."""
     node_name: str = ""
     """ROS node name; empty: `zensim_{robot_id}`."""
     robot_description_topic: str = "robot_description"
@@ -44,7 +49,10 @@ class Ros2Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     trajectory_topic: str = "joint_trajectory_controller/joint_trajectory"
     """trajectory_msgs/JointTrajectory in: its last point's positions for its named joints."""
     cmd_vel_topic: str = "cmd_vel"
-    """geometry_msgs/Twist in: checked and refused (counted) while no walking service runs."""
+    """geometry_msgs/Twist in: linear x, y and angular z to the walking controller (cmd/velocity, `zensim loco`);
+    refused (counted) while none is up."""
+    cmd_vel_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=60)] = 0.5
+    """Sim time each /cmd_vel holds: the robot stops this long after the last one (`ros2 topic pub -r 10`)."""
     world_frame: str = "world"
     """Fixed frame of the odometry and the TF."""
     base_frame: str = "pelvis"

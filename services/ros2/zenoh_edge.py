@@ -1,6 +1,6 @@
 """ROS 2 on Zenoh: `zensim ros2` as an rmw_zenoh node on zensim's own session (and so its router).
 
-One node token for the process, one endpoint token per publisher (MP) and subscription (MS), so
+One node token per robot served (one robot: one node), one endpoint token per publisher (MP) and subscription (MS), so
 `ros2 node list`, `ros2 topic list/info` on rmw_zenoh see them; data on rmw_zenoh's keys, each sample
 with its attachment. A latched topic (transient local) goes out through zenoh-ext's advanced
 publisher, whose cache answers the history query of a subscription that joins late; a plain put
@@ -16,6 +16,7 @@ import itertools
 import os
 import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import zenoh
@@ -54,18 +55,20 @@ class ZenohEdge:
         node_name: the node's name.
         cap_bytes: the largest payload a subscription accepts.
         humble: name types as Humble's rmw_zenoh does.
+        ids: where the node's id and its endpoints' ids come from; several nodes on one session (the
+            robots of a world) share one counter, as rmw_zenoh's nodes share their context's.
     """
 
     name = "zenoh"
 
     def __init__(self, session: zenoh.Session, domain: int, namespace: str, node_name: str, cap_bytes: int,
-                 humble: bool = False) -> None:
+                 humble: bool = False, ids: Iterator[int] | None = None) -> None:
         self._session = session
         self._domain = domain
         self._humble = humble
         self._cap_bytes = cap_bytes
-        self.node = Node(domain, str(session.zid()), 0, namespace, node_name)
-        self._entity_ids = itertools.count(1)
+        self._entity_ids = itertools.count(0) if ids is None else ids
+        self.node = Node(domain, str(session.zid()), next(self._entity_ids), namespace, node_name)
         self._tokens = [session.liveliness().declare_token(self.node.token())]
         self._publishers: list[ZenohPublisher] = []
         self._subscribers: list[zenoh.Subscriber] = []
