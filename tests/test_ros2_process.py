@@ -23,7 +23,7 @@ import pytest
 import zenoh
 import zenoh.ext
 
-from support import Latest, Service, ctl, free_port, plain_client, wait_for
+from support import TWO_JOINT_ARM, Latest, Service, ctl, free_port, plain_client, wait_for
 from zensim.schemas import JointState, Keys, Odometry, Ros2Status
 
 import ros2_client  # noqa: E402 - real rclpy (tests/ros2_node.py), in its own process and venv
@@ -428,3 +428,25 @@ def test_secured_ros2_face_serves_an_operators_ros2_node_and_a_viewer_cannot_dri
             session.close()
         for service in reversed(services):
             service.stop()
+
+
+def test_a_sim_restarted_with_another_robot_is_learned_again(tmp_path):
+    """The face maps the sim's joints to ROS names: after a restart with another robot, /robot_description and
+    /joint_states are the new robot's (a new run_id on state/sim: the robot is fetched again)."""
+    stack = Ros2Stack(tmp_path)
+    descriptions: list[str] = []
+    sub = stack.session.declare_subscriber(
+        f"{DOMAIN}/robot_description/std_msgs::msg::dds_::String_/*",
+        lambda s: descriptions.append(ros2_client.deserialize(("std_msgs/msg/String", s.payload.to_bytes()))[0]["data"]))
+    try:
+        sim = next(s for s in stack.services if s.command == "sim")
+        assert sim.stop() == 0
+        urdf = tmp_path / "arm.urdf"
+        urdf.write_text(TWO_JOINT_ARM)
+        stack.start("sim", "--urdf", str(urdf), "--mode", "fixed")
+        wait_for(lambda: any("shoulder" in d and "left_hip" not in d for d in descriptions), 60,
+                 "the two-joint arm's robot_description")
+        assert "learning the robot again" in stack.gateway.log() and stack.gateway.alive(), stack.logs()
+    finally:
+        sub.undeclare()
+        stack.close()

@@ -38,6 +38,7 @@ from typing import Any, Final
 import msgspec
 import zenoh
 
+from zensim.common.follow import SimRun
 from zensim.common.logs import RateLimitedLog
 from zensim.common.robot_info import fetch_robot
 from zensim.common.ros_rules import InputError, P3dOdometry, RateGate, RobotJoints, xyzw
@@ -133,7 +134,8 @@ class Gateway:
         self.refusals = Refusals(logger, "ROS 2 message")
         self._state_log = RateLimitedLog(logger, 5.0)
         self._flood = TokenBucket(COMMAND_RATE_HZ, COMMAND_BURST)
-        self.sim_restarted = threading.Event()
+        self.sim_run = SimRun()
+        """state/sim's run: `sim_run.restarted` is set when another sim run's robot must be learned again."""
         self._robot: RobotJoints | None = None
         self._cap_bytes = 0
         self._codecs: dict[type, Codec[Any]] = {JointState: Codec(JointState), Odometry: Codec(Odometry),
@@ -185,7 +187,7 @@ class Gateway:
         with self._lock:
             self._robot = robot
             self._cap_bytes = vector_cap_bytes(robot.names)
-            self.sim_restarted.clear()
+            self.sim_run.adopt(robot.run_id)
         self._description.put(msg.string(urdf))
         logger.info("%s published: %d characters", self.names.robot_description, len(urdf))
 
@@ -231,12 +233,8 @@ class Gateway:
 
     def _on_sim_status(self, sample: zenoh.Sample) -> None:
         status = self._decode(sample, SimStatus)
-        robot = self._robot
-        if status is None or robot is None:
-            return
-        if status.run_id and status.run_id != robot.run_id and not self.sim_restarted.is_set():
-            logger.info("the sim restarted (run %s): learning the robot again", status.run_id)
-            self.sim_restarted.set()
+        if status is not None and self._robot is not None:
+            self.sim_run.follows(status)  # sets sim_run.restarted on a new run
 
     def _on_loco_alive(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:
@@ -413,7 +411,7 @@ class Face:
     def tick(self, session: zenoh.Session, stop: threading.Event) -> bool:
         """Learn a restarted sim's robot again, then publish the status (False: stopped while learning)."""
         gateway = self.gateway
-        if gateway.sim_restarted.is_set():
+        if gateway.sim_run.restarted.is_set():
             robot = fetch_robot(session, self.keys, self.settings.info_timeout_s, stop, RobotJoints.from_info, logger)
             if robot is None:
                 return False
