@@ -94,11 +94,11 @@ class Refusals:
         self._lock = threading.Lock()
         self._log = log or RateLimitedLog(logger, period_s)
 
-    def refuse(self, key: object, reason: str) -> str:
-        """Count one refused input; returns the bounded reason (for a reply or a report)."""
+    def refuse(self, key: object, reason: str, count: int = 1) -> str:
+        """Count `count` refused inputs (one reason: the last's); returns the bounded reason (for a reply or a report)."""
         text = bounded(reason)
         with self._lock:
-            self.count += 1
+            self.count += count
             self.last_error = text
         self._log.warning("rejected %s on %s: %s", self.what, bounded(str(key), 120), text)
         return text

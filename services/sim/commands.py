@@ -182,17 +182,25 @@ class CommandIntake:
         refuse: refuses one sample of robot `index` put on a wildcard (counted, logged at a bounded rate).
         shed: counts one sample of robot `index` shed unread (this thread is the counter's one writer).
         every_sample: take every sample in arrival order, shedding none (a robot alone under lockstep).
+        screen: why a sample of robot `index` does not decode (None: it does), counting nothing: a suspect's
+            older samples are screened so (garbage fails in ~3 us) before one is taken.
+        refuse_screened: counts `count` screened samples of robot `index` refused, with the last one and its reason.
     """
 
     def __init__(self, rings: Sequence[zenoh.handlers.Handler[zenoh.Sample]], keys: Sequence[str],
                  take: Callable[[int, zenoh.Sample], bool], refuse: Callable[[int, zenoh.Sample], None],
-                 shed: Callable[[int], None], every_sample: bool = False) -> None:
+                 shed: Callable[[int], None], every_sample: bool = False,
+                 screen: Callable[[int, zenoh.Sample], str | None] = lambda index, sample: None,
+                 refuse_screened: Callable[[int, zenoh.Sample, str, int], None] = lambda index, sample, reason, count: None,
+                 ) -> None:
         self._rings = tuple(rings)
         self._keys = tuple(keys)
         self._take = take
         self._refuse = refuse
         self._shed = shed
         self._every_sample = every_sample
+        self._screen = screen
+        self._refuse_screened = refuse_screened
         self._turns = [Turns() for _ in self._rings]
         self._rng = random.Random()  # seeded from the OS: a flooder cannot predict which samples a reservoir keeps
         self._stop = threading.Event()
@@ -258,13 +266,21 @@ class CommandIntake:
         """One source's turn: its samples newest first until one is accepted (the rest shed unread); a
         suspect's older ones only while the take's check budget lasts."""
         accepted = refused = False
+        screened: tuple[zenoh.Sample, str] | None = None
+        screened_out = 0
         for tried, sample in enumerate(candidates.newest_first()):
             if accepted or (tried and time.thread_time() > checks_end):
                 self._shed(index)
+                continue
+            reason = self._screen(index, sample) if tried else None  # the newest goes the whole way at once
+            if reason is not None:
+                screened, screened_out, refused = (sample, reason), screened_out + 1, True
             elif self._apply(index, sample, source != WILDCARD):
                 accepted = True
             else:
                 refused = True
+        if screened is not None:
+            self._refuse_screened(index, *screened, screened_out)
         self._turns[index].served(source, accepted, refused)
 
     def _apply(self, index: int, sample: zenoh.Sample, exact: bool) -> bool:

@@ -359,11 +359,11 @@ class Simulation:
         n_clamped = int(np.count_nonzero(clipped != q))
         return Checked(robot, idx, clipped, kp, kd, n_clamped)
 
-    def reject(self, reason: str) -> None:
-        """Count a rejected command (decode or validation failure); any thread."""
+    def reject(self, reason: str, count: int = 1) -> None:
+        """Count `count` rejected commands (decode or validation failures; the reason is the last's); any thread."""
         text = bounded(reason)
         with self._lock:
-            self.rejected += 1
+            self.rejected += count
             self.last_error = text
 
     def command_age_s(self) -> float | None:

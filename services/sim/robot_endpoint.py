@@ -217,6 +217,19 @@ class RobotEndpoint:
             sample.key_expr, f"a command must be put on exactly {self.keys.motors}; one put on a wildcard "
                              "reaches every robot at once and is refused"))
 
+    def undecodable(self, sample: zenoh.Sample) -> str | None:
+        """Why `sample` does not decode (None when it does), counting nothing: the command thread screens a
+        suspect source's older samples with it, then counts those refused at once (`refuse_undecodable`)."""
+        try:
+            decode_input(sample, self.command_codec, self.input_cap_bytes)
+        except DecodeError as exc:
+            return str(exc)
+        return None
+
+    def refuse_undecodable(self, sample: zenoh.Sample, reason: str, count: int) -> None:
+        """Count `count` screened samples as refused (`reason`: the last one's, of `sample`)."""
+        self.sim.reject(self.command_refusals.refuse(sample.key_expr, reason, count), count)
+
     def take_command(self, sample: zenoh.Sample) -> bool:
         """Decode, check and apply one command sample (the engine's command thread); False when refused."""
         sim = self.sim
