@@ -285,8 +285,8 @@ def test_a_flood_from_many_claimed_sources_costs_the_sim_a_bounded_number_of_dec
 
 
 def test_candidates_keep_the_newest_or_a_uniform_sample_of_a_suspects_flood() -> None:
-    """Pure (services/sim/commands.py `Candidates`): a clean source's newest wins; a suspect's flood keeps
-    a good sample among 10 garbage ones about keep/10 of the time wherever it came, never aimed at."""
+    """Pure (services/sim/commands.py `Candidates`, `Turns.contested`): a source's newest wins; a contested
+    source's flood keeps a good sample among 10 garbage ones keep/10 of the time wherever it came."""
     import random
 
     from zensim.sim.commands import Candidates
@@ -304,10 +304,11 @@ def test_candidates_keep_the_newest_or_a_uniform_sample_of_a_suspects_flood() ->
         kept += "good" in samples
     assert 0.3 < kept / 2000 < 0.5, kept  # 4 of 10, whichever arrival was the good one
     turns = Turns()
-    turns.choose(["c"])
-    assert not turns.suspect("c")
-    turns.served("c", accepted=True, refused=True)  # a refused command, then an accepted one, in one turn
-    assert turns.suspect("c")
+    turns.choose(["garbage", "client"])
+    turns.served("garbage", accepted=False)
+    assert not turns.contested("garbage")  # garbage alone: newest-wins, nothing to find among it
+    turns.served("client", accepted=True, refused=True)  # a refused command, then an accepted one, in one turn
+    assert turns.contested("client")
 
 
 def test_garbage_claiming_a_clients_own_source_does_not_starve_it(
@@ -315,7 +316,7 @@ def test_garbage_claiming_a_clients_own_source_does_not_starve_it(
     """Issue 27 item 3: a flood of garbage put under a good client's own zenoh source id (read off its samples,
     as any subscriber can) replaced each of the client's commands before a take (newest wins per source):
     its commands stopped applying (command age 51-163 ms median beside a 10 kHz flood). Now a source with
-    refused commands keeps a uniform sample of its arrivals, tried newest first: the client's apply."""
+    accepted and refused commands keeps a uniform sample of its arrivals, tried newest first: the client's apply."""
     keys = Keys(robot_id)
     status = Latest(zsession, keys.sim_status, SimStatus)
     status.keep_history = True

@@ -25,11 +25,14 @@ it sends (it waited longer than the flooders since its last turn).
 
 Nor can a sender starve another by claiming its source (any subscriber reads a client's zenoh source id
 off its samples and can put garbage under it): newest-wins would let each garbage sample shed the good
-command before it. A source whose command was refused is a suspect for SUSPECT_TAKES (`Turns`); while it
-is, its samples are not replaced by the newest but kept as a uniform sample of SUSPECT_KEEP of those that
-came (`Candidates`, a reservoir the flood cannot aim at), and its turn tries them newest first until one
-is accepted, within CHECK_BUDGET_S of the thread's CPU per take for the whole intake. Under a 10 kHz garbage flood
-claiming a 500 Hz client's id most of that client's commands so still apply (docs/benchmarks.md).
+command before it. A source contested lately (both a command accepted and one refused in the last
+SUSPECT_TAKES takes, `Turns.contested`: garbage under a good client's id) does not keep its newest sample
+alone but a uniform sample of SUSPECT_KEEP of those that came (`Candidates`, a reservoir the flood cannot
+aim at); its turn screens them newest first by a decode alone until one is taken, within CHECK_BUDGET_S of
+the thread's CPU per take for the whole intake. A source of garbage alone keeps newest-wins: it has no
+good command to find, and a second look would only spend the sim's time. Beside a 10 kHz garbage flood
+claiming a 100 Hz client's id that client's commands so keep applying (command age p50 ~25 ms, was ~100;
+docs/benchmarks.md).
 
 A command put on a wildcard (`zensim/*/cmd/motors`) reaches every robot of a world at once: it is refused,
 never applied, and shed like the rest (the newest of a take refused and counted, the older ones shed
@@ -64,12 +67,12 @@ MAX_DECODES_PER_TAKE = 4
 REFUSED_PENALTY_TAKES = 50
 """A source whose command was refused waits this many takes (100 ms) behind the others for its next turn."""
 SUSPECT_TAKES = 500
-"""Takes (about a second) a source stays a suspect after its last refused command."""
-SUSPECT_KEEP = 32
-"""Samples of a suspect source kept for its turn (a uniform sample of those that came since the last take)."""
-CHECK_BUDGET_S = 0.0005
-"""CPU time per take the intake thread spends on suspects' older samples (a quarter of a take period at
-most; a source's newest sample is always tried): garbage is refused in ~3 us, a well-formed command in
+"""Takes (about a second) a command accepted, or one refused, counts towards a source's being contested."""
+SUSPECT_KEEP = 8
+"""Samples of a contested source kept for its turn (a uniform sample of those that came since the last take)."""
+CHECK_BUDGET_S = 0.0001
+"""CPU time per take the intake thread spends on contested sources' older samples (5 % of a take period;
+a source's newest sample is always tried): garbage fails its decode in ~3 us, a well-formed command in
 ~10-40 us. The thread's own CPU time, not the wall clock: on a loaded machine a wall-clock budget ran out
 while the thread was not even running."""
 MAX_SOURCES = 1024
@@ -103,8 +106,10 @@ class Turns:
         self.budget = budget
         self.take = 0
         self._turn: dict[object, int] = {}
-        self._suspects: dict[object, int] = {}
-        """A suspect source: the take until which it stays one."""
+        self._accepted: dict[object, int] = {}
+        """The take until which a source counts as having had a command accepted lately."""
+        self._refused: dict[object, int] = {}
+        """The take until which a source counts as having had a command refused lately."""
 
     def choose(self, sources: Sequence[object]) -> tuple[list[int], list[int]]:
         """At the start of a take: the positions in `sources` (arrival order) to decode, and those to shed."""
@@ -120,19 +125,25 @@ class Turns:
     def served(self, source: object, accepted: bool, refused: bool | None = None) -> None:
         """A source's turn ended: a command accepted (its next turn is the next take) or none (later).
 
-        `refused` (default: not accepted): one of its commands was refused, which makes it a suspect."""
+        `refused` (default: not accepted): one of its commands was refused (see `contested`)."""
         self._remember(source, self.take + (1 if accepted else REFUSED_PENALTY_TAKES))
         if refused is None:
             refused = not accepted
+        if accepted:
+            self._until(self._accepted, source)
         if refused:
-            self._suspects.pop(source, None)
-            self._suspects[source] = self.take + SUSPECT_TAKES
-            if len(self._suspects) > MAX_SOURCES:
-                del self._suspects[next(iter(self._suspects))]
+            self._until(self._refused, source)
 
-    def suspect(self, source: object) -> bool:
-        """Whether a command of `source` was refused in the last SUSPECT_TAKES takes."""
-        return self._suspects.get(source, -1) >= self.take
+    def contested(self, source: object) -> bool:
+        """Whether `source` had a command accepted and one refused in the last SUSPECT_TAKES takes: garbage
+        under a good client's id (a source of garbage alone gains nothing from a second look)."""
+        return min(self._refused.get(source, -1), self._accepted.get(source, -1)) >= self.take
+
+    def _until(self, marks: dict[object, int], source: object) -> None:
+        marks.pop(source, None)  # re-inserted last: the least recently marked is forgotten first
+        marks[source] = self.take + SUSPECT_TAKES
+        if len(marks) > MAX_SOURCES:
+            del marks[next(iter(marks))]
 
     def _remember(self, source: object, turn: int) -> None:
         self._turn.pop(source, None)  # re-inserted last: the dict's order is the order sources were last seen
@@ -182,7 +193,7 @@ class CommandIntake:
         refuse: refuses one sample of robot `index` put on a wildcard (counted, logged at a bounded rate).
         shed: counts one sample of robot `index` shed unread (this thread is the counter's one writer).
         every_sample: take every sample in arrival order, shedding none (a robot alone under lockstep).
-        screen: why a sample of robot `index` does not decode (None: it does), counting nothing: a suspect's
+        screen: why a sample of robot `index` does not decode (None: it does), counting nothing: a contested source's
             older samples are screened so (garbage fails in ~3 us) before one is taken.
         refuse_screened: counts `count` screened samples of robot `index` refused, with the last one and its reason.
     """
@@ -232,8 +243,8 @@ class CommandIntake:
                             key = (index, source)
                             candidates = pending.pop(key, None)  # re-inserted: keeps arrival order
                             if candidates is None:
-                                suspect = source != WILDCARD and self._turns[index].suspect(source)
-                                candidates = Candidates(SUSPECT_KEEP if suspect else 1, self._rng)
+                                contested = source != WILDCARD and self._turns[index].contested(source)
+                                candidates = Candidates(SUSPECT_KEEP if contested else 1, self._rng)
                             if candidates.add(sample):
                                 self._shed(index)
                             pending[key] = candidates
@@ -264,7 +275,7 @@ class CommandIntake:
 
     def _serve(self, index: int, source: object, candidates: Candidates[zenoh.Sample], checks_end: float) -> None:
         """One source's turn: its samples newest first until one is accepted (the rest shed unread); a
-        suspect's older ones only while the take's check budget lasts."""
+        contested source's older ones only while the take's check budget lasts."""
         accepted = refused = False
         screened: tuple[zenoh.Sample, str] | None = None
         screened_out = 0
