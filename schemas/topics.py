@@ -284,7 +284,7 @@ EVERY_ROLE_WATCHES: Final = ("alive/*", "claim/*")
 ROLES: Final[tuple[Role, ...]] = (
     Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim", "alive/world", "claim/*")),
     Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
-    Role("viz", "service", "the web viewer (sliders, buttons, plots)", publishes=("cmd/joints",), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info"), tokens=("alive/viz",)),
+    Role("viz", "service", "the web viewer (sliders, buttons, plots, keys and gamepad)", publishes=("cmd/joints", "cmd/velocity", "cmd/remote"), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (its sport service forwards to `zensim loco`)", publishes=("cmd/motors", "state/unitree", "cmd/velocity", "cmd/arms"), subscribes=("state/**", "cmd/remote"), queries=("info/**", "ctl/loco"), tokens=("alive/unitree",)),
     Role("loco", "service", "the walking controller", publishes=("cmd/motors", "state/loco"), subscribes=("state/**", "cmd/velocity", "cmd/arms"), serves=("ctl/loco",), queries=("info/**",), tokens=("alive/loco",)),
     Role("ros1", "service", "the ROS 1 gateway (the bridge-facing side)", publishes=("cmd/joints", "cmd/joint/*", "state/ros1", "cmd/velocity"), subscribes=("state/**",), queries=("info/**",), tokens=("alive/ros1",)),
