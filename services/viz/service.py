@@ -98,6 +98,8 @@ class Shown:
     feed: RobotFeed
     drawing: scene.Drawing
     limits: panel.JointLimits
+    ghost_offset_m: tuple[float, ...]
+    """Where its ghost stands relative to it (a world's: clear of the neighbours, world.ghost_offsets)."""
 
 
 class VizService:
@@ -198,7 +200,8 @@ class VizService:
         """One robot's description, drawn once the loop installs it."""
         feed = self.feeds[self.settings.robot_id]
         drawing, terrain = self._fetch_description(feed)
-        shown = Shown(feed, drawing, panel.JointLimits(drawing.joint_names, drawing.lower, drawing.upper))
+        shown = Shown(feed, drawing, panel.JointLimits(drawing.joint_names, drawing.lower, drawing.upper),
+                      self.settings.ghost_offset_m)
         self.loop.add_callback(self._install, [shown], drawing.commands + terrain_commands(terrain), drawing.meta)
 
     def _fetch_description(self, feed: RobotFeed) -> tuple[scene.Drawing, Terrain | None]:
@@ -246,7 +249,8 @@ class VizService:
         feeds = {robot_id: known.get(robot_id) or RobotFeed(self.session, robot_id, self.settings.ghost, self._on_sim,
                                                              label=f"{robot_id}: ")
                  for robot_id, _ in fetched.drawings}
-        shown = [Shown(feeds[robot_id], d, panel.JointLimits(d.joint_names, d.lower, d.upper))
+        offsets = world.ghost_offsets(fetched.spawns, self.settings.ghost_offset_m)
+        shown = [Shown(feeds[robot_id], d, panel.JointLimits(d.joint_names, d.lower, d.upper), offsets[robot_id])
                  for robot_id, d in fetched.drawings]
         state = "ok" if not fetched.left_out else \
             f"showing the first {len(shown)} robots of {len(shown) + fetched.left_out} (at most {world.MAX_ROBOTS})"
@@ -291,11 +295,12 @@ class VizService:
         self._last_drawn = counts
         parts: list[Any] = []
         for view, (js, _), (odom, _), (targets, _) in items:
-            parts += self._transforms(view.drawing, js, odom, targets)
+            parts += self._transforms(view, js, odom, targets)
         self.hub.publish_frame(scene.frame_payload(*parts))
 
-    def _transforms(self, drawing: scene.Drawing, js: Any, odom: Any, targets: JointTargets | None) -> list[Any]:
+    def _transforms(self, view: Shown, js: Any, odom: Any, targets: JointTargets | None) -> list[Any]:
         """One robot's link transforms (and its ghost's), in the order of its drawing's paths."""
+        drawing = view.drawing
         pos = odom.pos if odom is not None else None
         quat = odom.quat_wxyz if odom is not None else None
         q = js.q if js is not None and len(js.q) == len(drawing.joint_names) else None
@@ -303,7 +308,7 @@ class VizService:
         if not self.settings.ghost:
             return [actual]
         return [actual, drawing.kin.transforms(
-            self._ghost_q(drawing, targets, q), scene.base_transform(pos, quat, self.settings.ghost_offset_m))]
+            self._ghost_q(drawing, targets, q), scene.base_transform(pos, quat, view.ghost_offset_m))]
 
     @staticmethod
     def _ghost_q(drawing: scene.Drawing, targets: JointTargets | None, q: Any) -> list[float] | None:
