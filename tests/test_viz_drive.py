@@ -14,6 +14,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import pytest
 import tornado.websocket
@@ -41,7 +42,7 @@ class Heard:
     """Every sample of one key, decoded (the test's own plain subscriber)."""
 
     def __init__(self, session: zenoh.Session, key: str, message_type: type) -> None:
-        self.codec = Codec(message_type)
+        self.codec: Codec[Any] = Codec(message_type)
         self.messages: list = []
         self._sub = session.declare_subscriber(key, lambda s: self.messages.append(
             self.codec.decode(s.payload.to_bytes(), str(s.encoding))))
