@@ -460,10 +460,10 @@ function driveInput() {
       }
       padWasPressed[i] = pressed;
     });
-    $("gamepad").textContent = `gamepad: ${String(pad.id || "").slice(0, 40)} (sticks walk and turn; A stand, B damp)`;
-  } else {
-    $("gamepad").textContent = "no gamepad";
   }
+  // Polled 20 times a second: the DOM is touched only when the text changes.
+  const padText = pad ? `gamepad: ${String(pad.id || "").slice(0, 40)} (sticks walk and turn; A stand, B damp)` : "no gamepad";
+  if ($("gamepad").textContent !== padText) $("gamepad").textContent = padText;
   for (const axis of ["lx", "ly", "rx", "ry"]) remote[axis] = round(Math.max(-1, Math.min(1, remote[axis])));
   // Sticks at full tilt ask for the robot's limits (state/loco); keys for KEY_VELOCITY.
   const limits = (state.loco && state.loco.velocity_limits) || [KEY_VELOCITY.vx, KEY_VELOCITY.vy, KEY_VELOCITY.wz];
