@@ -207,6 +207,17 @@ class Browser:
         for kind in ("mousePressed", "mouseReleased"):
             self.send("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
 
+    def key(self, key: str, down: bool) -> None:
+        """Press (`down`) or release a key the way a user does: through chromium's input pipeline, to the
+        focused page (`key` as KeyboardEvent.key names it: "w", " ")."""
+        code = "Space" if key == " " else f"Key{key.upper()}" if len(key) == 1 and key.isalpha() else key
+        vk = 32 if key == " " else ord(key.upper()) if len(key) == 1 else 0
+        params: dict[str, Any] = {"type": "keyDown" if down else "keyUp", "key": key, "code": code,
+                                  "windowsVirtualKeyCode": vk}
+        if down and len(key) == 1:
+            params["text"] = key
+        self.send("Input.dispatchKeyEvent", **params)
+
     def select(self, element_id: str, value: str) -> None:
         """Choose an option of a <select> as a user does (the value changes, `change` fires)."""
         self.eval(

@@ -112,3 +112,15 @@ def test_a_running_viz_refuses_a_hostile_world_info_and_keeps_serving(
     finally:
         for queryable in queryables:
             queryable.undeclare()
+
+
+def test_a_ghost_never_stands_on_a_neighbour() -> None:
+    """The default offset (0.9 m to the left) would put a's ghost 0.1 m from b, a metre to its left: it goes
+    to the other side; a crowd with no clear side gets its ghosts over the robots themselves."""
+    offsets = world.ghost_offsets({"a": (0.0, 0.0), "b": (0.0, 1.0)}, (0.0, 0.9, 0.0))
+    assert offsets == {"a": (0.0, -0.9, 0.0), "b": (0.0, 0.9, 0.0)}  # b: the left is clear
+    crowd = {f"r{i}{j}": (0.5 * i, 0.5 * j) for i in range(3) for j in range(3)}
+    placed = world.ghost_offsets(crowd, (0.0, 0.9, 0.0))
+    assert placed["r11"] == (0.0, 0.0, 0.0)  # the middle one: every side has a neighbour
+    alone = world.ghost_offsets({"solo": (3.0, 4.0)}, (0.0, 0.9, 0.0))
+    assert alone == {"solo": (0.0, 0.9, 0.0)}

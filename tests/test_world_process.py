@@ -192,6 +192,17 @@ def test_world_viewer_draws_every_robot_at_its_place_and_drives_the_selected_one
     spots = {r: drawn_base(browser, r) for r in (a, b, arm)}
     assert abs(spots[b][0] - spots[a][0] - SPACING_M) < 0.1 and abs(spots[b][1] - spots[a][1]) < 0.1, spots
     assert abs(spots[arm][1] - spots[a][1] - 3.0) < 0.1 and spots[a][2] > STANDING_Z_M, spots
+    # The view frames every robot at start (issue 28: they sat in a corner), the mode control is hidden (the
+    # sim refuses ctl/mode for a robot of a world), and no ghost stands on a neighbour.
+    on_screen = {r: browser.eval(f"""(() => {{
+        const path = zensim.robot.paths.find((p) => p.startsWith('/robots/{r}/'));
+        return zensim.screenPosition('robots/{r}', path.split('/')[3]); }})()""") for r in (a, b, arm)}
+    assert all(abs(x) < 0.8 and abs(y) < 0.8 for x, y in on_screen.values()), on_screen
+    xs = [x for x, _ in on_screen.values()]
+    assert max(xs) - min(xs) > 0.3, on_screen  # spread over the view, not bunched in a corner
+    assert browser.eval("document.getElementById('mode-choice').hidden")
+    ghost_a = browser.eval("zensim.linkPosition('ghosts/%s', 'pelvis')" % a)
+    assert min(np.hypot(ghost_a[0] - spots[r][0], ghost_a[1] - spots[r][1]) for r in (b, arm)) > 0.6, (ghost_a, spots)
 
     # The panel acts on the first robot; its slider moves a alone.
     elbow = browser.eval("zensim.robot.robots[0].joints.map((j) => j.name)").index("left_elbow_joint")

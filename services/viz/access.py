@@ -11,6 +11,11 @@ Docker, `published_on`), or the network is secured (`--secure-dir`: then any loc
 otherwise drive the robot through the page with none of the network's credentials), every request
 needs the token, given once as `?token=...` (the URL printed at start, like Jupyter) and then kept in
 an HttpOnly, SameSite=Strict cookie.
+
+Roles: the token makes a page an operator's (it drives: sliders, buttons, keys, gamepad). A second
+token, the viewer's (`--viewer-token`), opens a page that may watch, not drive: every driving message
+from it is refused (panel.py). Giving a viewer token makes a token needed on loopback too, since a
+page opened with none would otherwise be an operator's.
 """
 
 from __future__ import annotations
@@ -19,8 +24,9 @@ import hmac
 import ipaddress
 import secrets
 import socket
-from typing import Final
+from typing import Final, Literal
 
+PageRole = Literal["operator", "viewer"]
 LOOPBACK_NAMES: Final = frozenset({"localhost", "127.0.0.1", "::1"})
 WILDCARDS: Final = frozenset({"", "0.0.0.0", "::", "*"})
 
@@ -61,10 +67,17 @@ class Guard:
         allowed_hosts: extra Host names to accept (`*` accepts any).
         token: the access token; None makes one when a token is needed.
         always_token: need the token even on loopback (the secured mode).
+        viewer_token: a second token, for pages that may watch, not drive; giving one makes tokens needed.
+
+    Raises:
+        ValueError: the viewer's token is the operator's.
     """
 
     def __init__(self, bind: str, published_on: str | None, allowed_hosts: tuple[str, ...], token: str | None,
-                 always_token: bool = False) -> None:
+                 always_token: bool = False, viewer_token: str | None = None) -> None:
+        if viewer_token is not None and viewer_token == token:
+            raise ValueError("the viewer's token must differ from the operator's (--viewer-token, --token)")
+        self.viewer_token = viewer_token
         self.allowed = set(LOOPBACK_NAMES) | {h.lower() for h in allowed_hosts}
         for address in (bind, published_on or ""):
             if address not in WILDCARDS:
@@ -78,7 +91,7 @@ class Guard:
         # Inside a container the page binds every interface but Docker may publish it on loopback only:
         # then the published address is what others can reach.
         reachable_on = published_on or bind
-        needed = always_token or not is_loopback(reachable_on)
+        needed = always_token or viewer_token is not None or not is_loopback(reachable_on)
         self.token: str | None = (token or secrets.token_urlsafe(24)) if needed else None
         self.cookie_name = "zensim_viz_token"
         """Set per port once bound: cookies are shared by every port of a host."""
@@ -90,7 +103,17 @@ class Guard:
         return self.any_host or name in self.allowed or is_ip_literal(name)
 
     def token_ok(self, given: str | None) -> bool:
-        """Whether `given` (query argument or cookie) is the token; always True when none is needed."""
+        """Whether `given` (query argument or cookie) is a token (either role's); always True when none is needed."""
+        return self.role_of(given) is not None
+
+    def role_of(self, given: str | None) -> PageRole | None:
+        """What a page with the token `given` may do: drive (operator) or watch (viewer); None: nothing."""
         if self.token is None:
-            return True
-        return given is not None and hmac.compare_digest(given.encode(), self.token.encode())
+            return "operator"
+        if given is None:
+            return None
+        if hmac.compare_digest(given.encode(), self.token.encode()):
+            return "operator"
+        if self.viewer_token is not None and hmac.compare_digest(given.encode(), self.viewer_token.encode()):
+            return "viewer"
+        return None

@@ -5,10 +5,12 @@ Reads (under `zensim/{robot}/`):
     state/joints (JointState), state/odom (Odometry): the pose, latest wins.
     state/targets (JointTargets): the ghost (the commanded pose the bridge holds), latest wins.
     state/sim (SimStatus): the status panel, latest wins.
+    state/loco (LocoStatus): the walking controller's commanded and achieved velocity, latest wins.
     state/joints, cmd/motors, state/targets, state/applied (every sample): the plot panel (plots.py).
     alive/* (liveliness): which services are up; the sim coming or going is reported to `on_sim`.
 Writes:
     cmd/joints (JointTargets): slider moves.
+    cmd/velocity (VelocityCommand), cmd/remote (RemoteState): the page's keys and gamepad (drive.py paces them).
     alive/viz (liveliness token): a viewer shows this robot.
 
 Zenoh callbacks only decode and store (or feed the plots); every bad sample is dropped and logged at a
@@ -33,9 +35,12 @@ from zensim.schemas import (
     JointState,
     JointTargets,
     Keys,
+    LocoStatus,
     MotorCommand,
     Odometry,
+    RemoteState,
     SimStatus,
+    VelocityCommand,
     bounded,
     topics,
 )
@@ -43,6 +48,7 @@ from zensim.schemas.bounds import STATE_CAP_BYTES
 from zensim.schemas.keys import SERVICES
 
 from . import plots
+from .drive import DriveGate
 
 logger = logging.getLogger(__name__)
 bad_input = RateLimitedLog(logger)
@@ -55,7 +61,7 @@ services (keys.SERVICES, six) always show."""
 MAX_ALIVE_NAME_CHARS: Final = 32
 
 CODECS: Final[dict[type, Codec[Any]]] = {t: Codec(t) for t in (JointState, Odometry, JointTargets, SimStatus,
-                                                                 MotorCommand, AppliedCommand)}
+                                                                 MotorCommand, AppliedCommand, LocoStatus)}
 """One decoder per type, shared by every robot's callbacks (msgspec decoders hold no state between calls)."""
 
 
@@ -93,16 +99,22 @@ class RobotFeed:
         self.odom = Latest()
         self.targets = Latest()
         self.status = Latest()
+        self.loco = Latest()
+        self.drive_gate = DriveGate()
+        """Paces this robot's cmd/velocity and cmd/remote puts, every page's together (the loop thread)."""
         self.alive: set[str] = set()
         self.alive_ignored = 0
         self.alive_logs: dict[str, RateLimitedLog] = {}
         self.alive_lock = threading.Lock()
         self.plot_feed = plots.PlotFeed()
         self.cmd_publisher = TypedPublisher.of(session, keys, topics.JOINT_TARGETS)
+        self.velocity_publisher: TypedPublisher[VelocityCommand] = TypedPublisher.of(session, keys, topics.VELOCITY)
+        self.remote_publisher: TypedPublisher[RemoteState] = TypedPublisher.of(session, keys, topics.REMOTE)
         self._declared = [
             session.declare_subscriber(keys.joints, self._store(self.joints, JointState)),
             session.declare_subscriber(keys.odom, self._store(self.odom, Odometry)),
             session.declare_subscriber(keys.sim_status, self._store(self.status, SimStatus)),
+            session.declare_subscriber(keys.loco_status, self._store(self.loco, LocoStatus)),
             session.liveliness().declare_subscriber(keys.alive_any, self._on_alive, history=True),
             session.declare_subscriber(keys.joints, self._plot_sample(JointState)),
             session.declare_subscriber(keys.motors, self._plot_sample(MotorCommand)),
@@ -183,3 +195,5 @@ class RobotFeed:
         for declared in self._declared:
             declared.undeclare()
         self.cmd_publisher.undeclare()
+        self.velocity_publisher.undeclare()
+        self.remote_publisher.undeclare()

@@ -15,7 +15,10 @@ from typing import Any, Final, Literal
 
 import msgspec
 
-from zensim.schemas import JointTargets, Mode, bounded, short_repr
+from zensim.schemas import JointTargets, Mode, RemoteState, VelocityCommand, bounded, short_repr
+from zensim.schemas.messages import RemoteButton
+
+from .drive import PAGE_TIMEOUT_S, Drive
 
 MAX_PLOT_JOINTS: Final = 6
 
@@ -55,7 +58,29 @@ class PageSelect(msgspec.Struct, tag="select", forbid_unknown_fields=True):
     robot: str
 
 
-PageMessage = PageTargets | PageCtl | PageMode | PagePlot | PageSelect
+class PageDrive(msgspec.Struct, tag="drive", forbid_unknown_fields=True):
+    """Keys or gamepad: `{"type": "drive", "vx": 0.5, "vy": 0, "wz": 0, "buttons": [], "lx": 0, "ly": 1, ...}`:
+    the velocity to walk at (m/s, m/s, rad/s; cmd/velocity) and the remote as held (cmd/remote)."""
+
+    vx: float
+    vy: float
+    wz: float
+    buttons: list[RemoteButton] = []
+    lx: float = 0.0
+    ly: float = 0.0
+    rx: float = 0.0
+    ry: float = 0.0
+
+
+class PageLoco(msgspec.Struct, tag="loco", forbid_unknown_fields=True):
+    """A walking verb (the Stand/Damp buttons, a gamepad's A/B): `{"type": "loco", "verb": "walk"}`."""
+
+    verb: Literal["walk", "damp", "sit", "stand_up"]
+
+
+PageMessage = PageTargets | PageCtl | PageMode | PagePlot | PageSelect | PageDrive | PageLoco
+DRIVING: Final = (PageTargets, PageCtl, PageMode, PageDrive, PageLoco)
+"""What moves the robot or the sim: refused from a page that may only watch (a viewer's token)."""
 PAGE_CTL_VERBS: Final = ("reset", "pause", "resume", "step")
 
 
@@ -71,6 +96,13 @@ class PlotRequest:
     """The joints a page wants plotted; none means plotting is off."""
 
     joints: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Loco:
+    """A walking verb for the page's robot (ctl/loco)."""
+
+    verb: str
 
 
 @dataclass(frozen=True)
@@ -102,24 +134,31 @@ class JointLimits:
             raise PanelError("a joint is named twice")
 
 
-def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets | Ctl | PlotRequest | Select:
+Command = JointTargets | Ctl | PlotRequest | Select | Drive | Loco
+
+
+def parse_client_message(data: Any, limits: JointLimits | None, may_drive: bool = True) -> Command:
     """Turn one decoded JSON message from the page into a command.
 
     Args:
         data: the decoded JSON.
         limits: the current robot's joints; None before a description arrived.
+        may_drive: False for a page that may only watch (opened with the viewer's token).
 
     Returns:
         JointTargets for `targets`, Ctl for `ctl` and `mode`, PlotRequest for `plot`, Select for `select`
-        (the service checks that it names a robot it shows).
+        (the service checks that it names a robot it shows), Drive for `drive`, Loco for `loco`.
 
     Raises:
-        PanelError: anything malformed, unknown or out of place.
+        PanelError: anything malformed, unknown or out of place, or driving from a page that may only watch.
     """
     try:
         message = msgspec.convert(data, PageMessage)
     except msgspec.ValidationError as exc:
         raise PanelError(bounded(f"refused: {exc}")) from None
+    if not may_drive and isinstance(message, DRIVING):
+        raise PanelError(f"refused {type(message).__struct_config__.tag}: this page may watch, not drive "
+                         "(it was opened with the viewer's token)")
     match message:
         case PageTargets(names=names, q=q):
             if limits is None:
@@ -146,4 +185,14 @@ def parse_client_message(data: Any, limits: JointLimits | None) -> JointTargets 
             return PlotRequest(joints=tuple(joints))
         case PageSelect(robot=robot):
             return Select(robot=robot)
+        case PageDrive():
+            try:  # finite, not absurd (|v| <= 10), no button twice, sticks in -1..1: the schemas' own checks
+                return Drive(
+                    velocity=VelocityCommand(vx=message.vx, vy=message.vy, wz=message.wz, timeout_s=PAGE_TIMEOUT_S),
+                    remote=msgspec.convert({"buttons": message.buttons, "lx": message.lx, "ly": message.ly,
+                                            "rx": message.rx, "ry": message.ry}, RemoteState))
+            except (ValueError, msgspec.ValidationError) as exc:
+                raise PanelError(bounded(f"refused drive: {exc}")) from None
+        case PageLoco(verb=verb):
+            return Loco(verb=verb)
     raise PanelError("unknown message")  # unreachable: the union is closed

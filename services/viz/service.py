@@ -8,6 +8,7 @@ Reads (under each robot's `zensim/{robot}/`):
     state/joints (JointState), state/odom (Odometry): the robot's pose, latest wins.
     state/targets (JointTargets): the ghost (the commanded pose the bridge holds).
     state/sim (SimStatus): the status panel.
+    state/loco (LocoStatus): the drive panel (commanded and achieved velocity).
     state/joints, cmd/motors, state/targets, state/applied (every sample): the plot panel (plots.py).
     alive/* (liveliness): which services are up; `alive/sim` appearing triggers a description fetch.
     zensim/@router/alive (liveliness): the router badge, whatever robot id the router was started with.
@@ -15,9 +16,12 @@ Reads (under each robot's `zensim/{robot}/`):
     zensim/{world}/world/info (get, with --world): the world's robots, fetched again after its sim restarts.
 Writes (under the selected robot's `zensim/{robot}/`):
     cmd/joints (JointTargets): slider moves.
+    cmd/velocity (VelocityCommand), cmd/remote (RemoteState): the page's keys and gamepad, paced per
+        robot (drive.py: at most 30 puts a second, latest wins, the rest shed and counted).
     ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode (gets): the panel's buttons.
     zensim/{world}/world/pause, world/resume, world/step (gets, with --world): the pause, resume and step
         buttons (a world's robots share one clock: a robot's own ctl/pause etc. refuse).
+    ctl/loco (get): the drive panel's Stand and Damp buttons, a gamepad's A and B.
     alive/viz (liveliness token, one per robot shown).
 
 Threads: the tornado loop (main thread) owns the hub, the web server and what is shown;
@@ -53,6 +57,8 @@ from zensim.schemas import (
     CtlReply,
     JointTargets,
     Keys,
+    LocoRequest,
+    LocoStatus,
     ModeRequest,
     PauseRequest,
     ResetRequest,
@@ -68,6 +74,7 @@ from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, STATE_CAP_BYTES
 from zensim.schemas.messages import Terrain
 
 from . import fetch, panel, plots, scene, world
+from .drive import Drive
 from .feed import RobotFeed
 from .settings import VizSettings
 from .terrain import terrain_commands
@@ -77,8 +84,10 @@ from .web import Client, Hub, make_app
 logger = logging.getLogger(__name__)
 WORLD_CLOCK_VERBS = ("pause", "resume", "step")
 """The buttons that act on a world's one clock: under `--world` they are the world's verbs."""
-ctl_logs = {verb: RateLimitedLog(logger) for verb in ("reset", "pause", "resume", "step", "mode")}
+ctl_logs = {verb: RateLimitedLog(logger) for verb in ("reset", "pause", "resume", "step", "mode", "loco")}
 """The line per control request a page sends, one limiter per verb: bounded, a page may send many."""
+shed_log = RateLimitedLog(logger, 10.0)
+"""The line when pages drive a robot faster than drive.PUTS_PER_S: every 10 s at most, with the counts."""
 world_wait_log = RateLimitedLog(logger, 30.0)
 """The line while the world does not answer (the viewer may start before it): every 30 s at most."""
 
@@ -94,6 +103,8 @@ class Shown:
     feed: RobotFeed
     drawing: scene.Drawing
     limits: panel.JointLimits
+    ghost_offset_m: tuple[float, ...]
+    """Where its ghost stands relative to it (a world's: clear of the neighbours, world.ghost_offsets)."""
 
 
 class VizService:
@@ -122,7 +133,7 @@ class VizService:
         self._world_left = False
         """A world's sim went away since its world/info was fetched: fetch again when it is back."""
         self._last_drawn: tuple[int, ...] = ()
-        self._codecs: dict[type, Codec[Any]] = {t: Codec(t) for t in (RobotInfo, CtlReply)}
+        self._codecs: dict[type, Codec[Any]] = {t: Codec(t) for t in (RobotInfo, CtlReply, LocoStatus)}
         self.plot_subs: dict[Client, tuple[plots.PlotFeed, plots.Subscription]] = {}
         self._declared = [
             session.liveliness().declare_subscriber(topics.ROUTER_ALIVE.full_key(), self._on_router_alive, history=True),
@@ -194,7 +205,8 @@ class VizService:
         """One robot's description, drawn once the loop installs it."""
         feed = self.feeds[self.settings.robot_id]
         drawing, terrain = self._fetch_description(feed)
-        shown = Shown(feed, drawing, panel.JointLimits(drawing.joint_names, drawing.lower, drawing.upper))
+        shown = Shown(feed, drawing, panel.JointLimits(drawing.joint_names, drawing.lower, drawing.upper),
+                      self.settings.ghost_offset_m)
         self.loop.add_callback(self._install, [shown], drawing.commands + terrain_commands(terrain), drawing.meta)
 
     def _fetch_description(self, feed: RobotFeed) -> tuple[scene.Drawing, Terrain | None]:
@@ -242,7 +254,8 @@ class VizService:
         feeds = {robot_id: known.get(robot_id) or RobotFeed(self.session, robot_id, self.settings.ghost, self._on_sim,
                                                              label=f"{robot_id}: ")
                  for robot_id, _ in fetched.drawings}
-        shown = [Shown(feeds[robot_id], d, panel.JointLimits(d.joint_names, d.lower, d.upper))
+        offsets = world.ghost_offsets(fetched.spawns, self.settings.ghost_offset_m)
+        shown = [Shown(feeds[robot_id], d, panel.JointLimits(d.joint_names, d.lower, d.upper), offsets[robot_id])
                  for robot_id, d in fetched.drawings]
         state = "ok" if not fetched.left_out else \
             f"showing the first {len(shown)} robots of {len(shown) + fetched.left_out} (at most {world.MAX_ROBOTS})"
@@ -273,6 +286,10 @@ class VizService:
             self.loop.stop()
             return
         self.hub.sweep()  # pages stalled on their scene
+        for feed in list(self.feeds.values()):  # drive inputs that came faster than the rate: the newest now
+            drive = feed.drive_gate.flush()
+            if drive is not None:
+                self._put_drive(feed, drive)
         shown = self.shown
         if not shown or not self.hub.any_ready():
             return
@@ -283,11 +300,12 @@ class VizService:
         self._last_drawn = counts
         parts: list[Any] = []
         for view, (js, _), (odom, _), (targets, _) in items:
-            parts += self._transforms(view.drawing, js, odom, targets)
+            parts += self._transforms(view, js, odom, targets)
         self.hub.publish_frame(scene.frame_payload(*parts))
 
-    def _transforms(self, drawing: scene.Drawing, js: Any, odom: Any, targets: JointTargets | None) -> list[Any]:
+    def _transforms(self, view: Shown, js: Any, odom: Any, targets: JointTargets | None) -> list[Any]:
         """One robot's link transforms (and its ghost's), in the order of its drawing's paths."""
+        drawing = view.drawing
         pos = odom.pos if odom is not None else None
         quat = odom.quat_wxyz if odom is not None else None
         q = js.q if js is not None and len(js.q) == len(drawing.joint_names) else None
@@ -295,7 +313,7 @@ class VizService:
         if not self.settings.ghost:
             return [actual]
         return [actual, drawing.kin.transforms(
-            self._ghost_q(drawing, targets, q), scene.base_transform(pos, quat, self.settings.ghost_offset_m))]
+            self._ghost_q(drawing, targets, q), scene.base_transform(pos, quat, view.ghost_offset_m))]
 
     @staticmethod
     def _ghost_q(drawing: scene.Drawing, targets: JointTargets | None, q: Any) -> list[float] | None:
@@ -331,10 +349,11 @@ class VizService:
             self.hub.publish_json(self._status(feed, router), clients)
 
     def _status(self, feed: RobotFeed | None, router: set[str]) -> dict[str, Any]:
-        status = targets = joints = None
+        status = targets = joints = loco = None
         alive: set[str] = set()
         if feed is not None:
-            (status, _), (targets, _), (joints, _) = feed.status.item, feed.targets.item, feed.joints.item
+            (status, _), (targets, _), (joints, _), (loco, _) = (feed.status.item, feed.targets.item, feed.joints.item,
+                                                                  feed.loco.item)
             alive = feed.alive_names()
         message: dict[str, Any] = {
             "type": "status",
@@ -343,6 +362,8 @@ class VizService:
             "sim": _bounded_texts(msgspec.to_builtins(status)) if status is not None else None,
             "targets": {"names": list(targets.names), "q": list(targets.q)} if targets is not None else None,
             "state_seq": joints.seq if joints is not None else None,
+            "loco": _loco_summary(loco) if loco is not None else None,
+            "drive": feed.drive_gate.counts() if feed is not None else None,
             "frames_sent": self.hub.frames_sent,
         }
         if self.world is not None:
@@ -370,9 +391,23 @@ class VizService:
     def _on_client_message(self, client: Client, data: Any) -> None:
         view = self._view_of(client)
         try:
-            command = panel.parse_client_message(data, view.limits if view is not None else None)
+            command = panel.parse_client_message(data, view.limits if view is not None else None, client.may_drive)
         except panel.PanelError as exc:
             self.hub.refuse(client, str(exc))
+            return
+        if isinstance(command, Drive):
+            feed = self._feed_of(client)
+            if feed is None:
+                self.hub.refuse(client, f"drive: no robot yet ({self.description_state})")
+                return
+            gate = feed.drive_gate
+            shed_before = gate.shed
+            now = gate.offer(command)
+            if now is not None:
+                self._put_drive(feed, now)
+            elif gate.shed > shed_before:
+                shed_log.warning("%sdrive inputs from pages come faster than %g a second: newest kept, %d shed so far "
+                                 "(%d received)", feed.label, gate.rate, gate.shed, gate.received)
             return
         if isinstance(command, panel.Select):
             if command.robot not in self.views:
@@ -401,7 +436,8 @@ class VizService:
             self.hub.refuse(client, f"ctl/{command.verb}: this page's previous control request is still in flight")
             return
         client.ctl_in_flight = True
-        future = self.loop.run_in_executor(self.executor, self._ctl, command, feed)
+        work = self._loco if isinstance(command, panel.Loco) else self._ctl
+        future = self.loop.run_in_executor(self.executor, work, command, feed)
         future.add_done_callback(lambda f: self._ctl_done(client, command.verb, f))
 
     def _ctl_done(self, client: Client, verb: str, future: Any) -> None:
@@ -436,12 +472,40 @@ class VizService:
         ctl_logs[command.verb].info("%s%s -> ok=%s %s", feed.label, key.split("/", 2)[2], reply.ok, reply.error or "")
         return out
 
+    @staticmethod
+    def _put_drive(feed: RobotFeed, drive: Drive) -> None:
+        """(loop) One input of the page's keys or gamepad: the velocity, then the remote as held."""
+        feed.velocity_publisher.put(drive.velocity)
+        feed.remote_publisher.put(drive.remote)
+
+    def _loco(self, command: panel.Loco, feed: RobotFeed) -> dict:
+        """Executor thread: one ctl/loco get (a walking verb) to `feed`'s robot; the page's reply as a dict."""
+        verb = f"loco {command.verb}"
+        out: dict[str, Any] = {"type": "ctl_reply", "verb": verb}
+        request = LocoRequest(verb=command.verb)  # type: ignore[arg-type]
+        try:
+            raw = self._get_bytes(feed.keys.ctl_loco, Codec(LocoRequest).encode(request), STATE_CAP_BYTES)
+            reply = self._codecs[LocoStatus].decode(raw)
+        except (TimeoutError, ValueError, zenoh.ZError) as exc:
+            out.update(ok=False, error=bounded(str(exc)))
+            return out
+        out.update(ok=reply.ok, error=bounded(reply.error) if reply.error else None)
+        ctl_logs["loco"].info("%sctl/loco %s -> ok=%s %s", feed.label, command.verb, reply.ok, reply.error or "")
+        return out
+
     def close(self) -> None:
         for feed in self.feeds.values():
             feed.close()
         for declared in self._declared:
             declared.undeclare()
         self.executor.shutdown(wait=False, cancel_futures=True)
+
+
+def _loco_summary(status: LocoStatus) -> dict[str, Any]:
+    """What the drive panel shows of the walking controller's state."""
+    return {"fsm_id": status.fsm_id, "active": status.active, "walking": status.walking, "stepping": status.stepping,
+            "commanded": list(status.commanded), "achieved": list(status.achieved),
+            "velocity_limits": list(status.velocity_limits), "seq": status.seq}
 
 
 def _bounded_texts(fields: dict[str, Any]) -> dict[str, Any]:
@@ -472,8 +536,12 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
         raise StartupError(f"cannot serve the page on {settings.host}:{settings.port} "
                            f"(--host / ZENSIM_VIZ_HOST, --port / ZENSIM_VIZ_PORT): {exc.strerror or exc}") from None
     port = sockets[0].getsockname()[1]
-    guard = Guard(settings.host, settings.published_on, settings.allowed_hosts, settings.token,
-                  always_token=bool(settings.zenoh.secure_dir))
+    try:
+        guard = Guard(settings.host, settings.published_on, settings.allowed_hosts, settings.token,
+                      always_token=bool(settings.zenoh.secure_dir), viewer_token=settings.viewer_token)
+    except ValueError as exc:
+        service.close()
+        raise StartupError(str(exc)) from None
     guard.cookie_name = f"zensim_viz_token_{port}"
     server = tornado.httpserver.HTTPServer(make_app(service.hub, guard))
     server.add_sockets(sockets)
@@ -485,6 +553,9 @@ def run(session: zenoh.Session, settings: VizSettings, stop: threading.Event) ->
         why = "the network is secured" if settings.zenoh.secure_dir else "the page is reachable beyond loopback"
         logger.info("%s: open the page with its token: http://%s/?token=%s", why,
                     url_authority(guard.url_host, port), guard.token)
+    if guard.viewer_token is not None:
+        logger.info("pages that may watch, not drive: http://%s/?token=%s", url_authority(guard.url_host, port),
+                    guard.viewer_token)
     fetcher = threading.Thread(target=service.fetch_loop, name="viz-description", daemon=True)
     fetcher.start()
     tornado.ioloop.PeriodicCallback(service.tick, 1000.0 / settings.rate_hz).start()

@@ -34,6 +34,9 @@ class VizSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     token: str | None = None
     """Access token required when the page is reachable beyond loopback (default: a random one, printed at
     start as a URL); set it for compose."""
+    viewer_token: str | None = None
+    """A second access token, for pages that may watch, not drive (sliders, buttons, keys, gamepad refused);
+    giving one makes a token needed on loopback too."""
     published_on: str | None = None
     """Where the page is reachable from outside when that is not --host (compose passes ZENSIM_BIND);
     anything but loopback requires the token."""

@@ -148,6 +148,8 @@ class Client:
         """The page hears why at most once a second: a reply per refused message would amplify a flood."""
         self.ctl_in_flight = False
         """One control request per page at a time: a page cannot queue resets faster than the sim answers."""
+        self.may_drive = True
+        """False for a page opened with the viewer's token: it watches, every driving message is refused."""
         self.robot: str | None = None
         """The robot this page's panel acts on (a world's viewer); None: the first robot shown."""
         self.scene_next: int | None = None
@@ -396,6 +398,11 @@ class VizSocket(Guarded, tornado.websocket.WebSocketHandler):
 
     def open(self, *args: str, **kwargs: str) -> None:
         self.set_nodelay(True)
+        guard: Guard = self.application.settings["guard"]
+        role = guard.role_of(self.get_query_argument("token", None) or self.get_cookie(guard.cookie_name))
+        self.client.may_drive = role == "operator"
+        # First, so the page shows its driving controls only where they work.
+        self.client.send(json.dumps({"type": "hello", "role": role}), binary=False)
         self.hub.opened(self.client)
 
     def on_message(self, message: str | bytes) -> None:

@@ -19,6 +19,7 @@ FETCH_BUDGET_BYTES.
 from __future__ import annotations
 
 import hashlib
+import math
 import logging
 from dataclasses import dataclass
 from typing import Any, Final
@@ -53,6 +54,8 @@ class WorldScene:
     meta: dict[str, Any]
     left_out: int
     """Robots of the world not shown (past MAX_ROBOTS)."""
+    spawns: dict[str, tuple[float, float]]
+    """Each robot's spawn place, x, y in m (where ghost_offsets keeps ghosts clear of neighbours)."""
 
 
 def checked_robots(info: WorldInfo) -> tuple[list[WorldRobot], int]:
@@ -141,4 +144,30 @@ def fetch_world(get: fetch.Getter, world_id: str, ghost: bool) -> WorldScene:
     logger.info("world %s: %d robots, %d descriptions, %d meshes (%.0f kB)", world_id, len(drawings), len(shared),
                 sum(len(m) for _, _, m in shared.values()),
                 sum(len(b) for _, _, m in shared.values() for b in m.values()) / 1e3)
-    return WorldScene(drawings, commands, meta, left_out)
+    return WorldScene(drawings, commands, meta, left_out, {robot.robot: (robot.xy[0], robot.xy[1]) for robot in robots})
+
+
+GHOST_CLEARANCE_M: Final = 0.7
+"""How far a ghost stands from every other robot's spawn place and every other ghost (a G1 is ~0.45 m wide)."""
+
+
+def ghost_offsets(spawns: dict[str, tuple[float, float]], wanted: tuple[float, ...]) -> dict[str, tuple[float, float, float]]:
+    """Where each robot's ghost stands relative to it: `wanted` (the --ghost-offset-m) where that is clear of
+    the other robots and of the ghosts placed before, else the first clear of: `wanted` mirrored, turned a
+    quarter either way; else over the robot itself (0, 0, 0), which never lands on a neighbour.
+
+    Judged at the spawn places: robots that walk may meet their neighbours' ghosts later, as they may meet
+    the neighbours.
+    """
+    x, y, z = (tuple(wanted) + (0.0, 0.0, 0.0))[:3]
+    candidates = [(x, y, z), (x, -y, z), (y, x, z), (-y, -x, z)]
+    placed: dict[str, tuple[float, float, float]] = {}
+    ghosts: list[tuple[float, float]] = []
+    for robot, (sx, sy) in spawns.items():
+        others = [xy for other, xy in spawns.items() if other != robot] + ghosts
+        choice = next((c for c in candidates
+                       if all(math.hypot(sx + c[0] - ox, sy + c[1] - oy) >= GHOST_CLEARANCE_M for ox, oy in others)),
+                      (0.0, 0.0, z))
+        placed[robot] = choice
+        ghosts.append((sx + choice[0], sy + choice[1]))
+    return placed

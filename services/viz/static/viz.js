@@ -7,6 +7,10 @@ const state = {
   connected: false, sceneReady: false, generation: -1, framesApplied: 0, connects: 0,
   robot: null, status: null, lastReply: null, lastError: null,
   selected: null,   // a world's viewer: the robot the panel acts on
+  role: null,       // "operator" (drives) or "viewer" (watches), from the viz's hello
+  loco: null,       // the walking controller's state (state/loco), as the last status carried it
+  drive: { sent: 0, last: null, keys: [], gamepad: false },
+  follow: true,     // the camera follows the selected robot
 };
 window.zensim = state;
 
@@ -76,12 +80,14 @@ function onBinary(buf) {
 function applyFrame(floats) {
   const n = Math.min(nodes.length, floats.length / 16);
   for (let i = 0; i < n; i++) nodes[i].set_transform(floats.subarray(16 * i, 16 * i + 16));
+  followCamera();
   viewer.set_dirty();
   state.framesApplied += 1;
 }
 
 function onJson(msg) {
-  if (msg.type === "robot") onRobot(msg);
+  if (msg.type === "hello") onHello(msg);
+  else if (msg.type === "robot") onRobot(msg);
   else if (msg.type === "status") onStatus(msg);
   else if (msg.type === "ctl_reply") {
     state.lastReply = msg;
@@ -105,6 +111,7 @@ function onRobot(msg) {
   state.sceneReady = false;
   nodes = msg.paths.map((p) => viewer.scene_tree.find(p.split("/").filter((x) => x.length)));
   ghostVisible = false;
+  followFrom = null;
   if (msg.robots) { onWorld(msg); return; }
   $("robot-name").textContent = msg.name;
   buildSliders(msg.joints);
@@ -136,11 +143,12 @@ function onWorld(msg) {
     select.append(option);
   }
   $("robot-choice").hidden = false;
+  $("mode-choice").hidden = true;   // the sim refuses ctl/mode for a robot of a world
   if (!worldFramed) frameWorld(msg.robots);   // once: a later scene (the world restarted) keeps the user's view
   worldFramed = true;
   const kept = msg.robots.some((r) => r.id === state.selected) ? state.selected : msg.robots[0].id;
   state.selected = null;
-  selectRobot(kept);
+  selectRobot(kept, false);
 }
 
 // Copies of the shapes under `from` (meshcat scene nodes) under `to`: the same geometry and materials
@@ -161,12 +169,14 @@ function selectedRobot() {
   return state.robot && state.robot.robots ? state.robot.robots.find((r) => r.id === state.selected) : null;
 }
 
-function selectRobot(id) {
+function selectRobot(id, recentre) {
   const before = selectedRobot();
   if (before && before.roots[1]) viewer.set_property(pathOf(before.roots[1]), "visible", false);
   ghostVisible = false;
   state.selected = id;
   state.status = null;
+  followFrom = null;
+  followRecentre = recentre;   // the user picked another robot: the camera moves to it
   const robot = selectedRobot();
   $("robot-select").value = id;
   $("robot-name").textContent = `${state.robot.name}: ${id}`;
@@ -187,7 +197,7 @@ function frameWorld(robots) {
   viewer.set_dirty();
 }
 
-$("robot-select").addEventListener("change", () => selectRobot($("robot-select").value));
+$("robot-select").addEventListener("change", () => selectRobot($("robot-select").value, true));
 
 function buildSliders(joints) {
   const box = $("sliders");
@@ -205,6 +215,7 @@ function buildSliders(joints) {
     input.min = j.lower; input.max = j.upper; input.step = 0.001;
     input.value = Math.min(Math.max(0, j.lower), j.upper);
     const entry = { input, value, touched: 0 };
+    input.disabled = state.role === "viewer";
     input.addEventListener("input", () => {
       entry.touched = performance.now();
       value.textContent = Number(input.value).toFixed(3);
@@ -235,6 +246,7 @@ function onStatus(msg) {
     alive.append(span);
   }
   if (sim) onRtf(sim.rtf);
+  onLoco(msg.loco, msg.drive);
   const shown = selectedRobot() || state.robot;
   $("description").textContent = msg.description === "ok" ? (shown ? shown.source : "") : msg.description;
   if (msg.targets) {
@@ -385,5 +397,192 @@ function redrawPlots() {
 }
 
 $("btn-plot").addEventListener("click", () => setPlotting(!plot.on));
+
+// --- the page's role -------------------------------------------------------------------------
+// A page opened with the viewer's token watches: its driving controls are hidden, and the viz refuses
+// whatever driving message it would send anyway.
+function onHello(msg) {
+  state.role = msg.role;
+  const watching = msg.role !== "operator";
+  for (const id of ["controls", "drive-buttons", "drive-keys"]) $(id).hidden = watching;
+  $("watch-only").hidden = !watching;
+  for (const s of sliders.values()) s.input.disabled = watching;
+}
+
+// --- driving: keys and gamepad -> cmd/velocity (and cmd/remote, Unitree's wireless remote) --------
+// The page sends a `drive` message when what is held changes, and again every KEEP_ALIVE_MS while
+// something is held (each command holds for 1 s of sim time: a page that dies leaves a robot that stops).
+// Auto-repeat keydowns are not sent; the viz paces every page's drive puts per robot anyway.
+const KEY_VELOCITY = { vx: 0.5, vy: 0.3, wz: 0.6 };   // m/s, m/s, rad/s while a key is held
+const KEEP_ALIVE_MS = 100, GAMEPAD_POLL_MS = 50, STICK_DEADZONE = 0.12;
+const DRIVE_KEYS = new Set(["w", "a", "s", "d", "q", "e"]);
+// The standard gamepad mapping's buttons, as Unitree's remote names them (cmd/remote).
+const PAD_BUTTONS = { 0: "A", 1: "B", 2: "X", 3: "Y", 4: "L1", 5: "R1", 6: "L2", 7: "R2", 8: "Select", 9: "Start",
+                      12: "Up", 13: "Down", 14: "Left", 15: "Right" };
+const held = new Set();
+let lastDrive = null, lastDriveAt = 0, padWasPressed = {};
+
+// Tests (and the console) can stand in for a gamepad: `zensim.setGamepads([{axes: [0, -1, 0, 0],
+// buttons: [{pressed: true}]}])`; null gives the browser's own back.
+state.fakeGamepads = null;
+state.setGamepads = (pads) => { state.fakeGamepads = pads; pollDrive(); };
+state.send = send;
+
+function gamepads() {
+  if (state.fakeGamepads) return state.fakeGamepads;
+  return navigator.getGamepads ? [...navigator.getGamepads()].filter((p) => p) : [];
+}
+
+function stick(value) {
+  return Math.abs(value) < STICK_DEADZONE ? 0 : Math.max(-1, Math.min(1, value));
+}
+
+function round(x) { return Math.round(x * 1000) / 1000; }
+
+// What is held now: keys and the first gamepad, summed.
+function driveInput() {
+  const k = (key) => (held.has(key) ? 1 : 0);
+  const remote = { lx: k("d") - k("a"), ly: k("w") - k("s"), rx: k("e") - k("q"), ry: 0 };
+  const buttons = [];
+  const pad = gamepads()[0];
+  state.drive.gamepad = Boolean(pad);
+  if (pad) {
+    const axes = pad.axes || [];
+    // Browsers report "up" as negative: the remote's ly and ry are forward positive.
+    remote.lx += stick(axes[0] || 0); remote.ly -= stick(axes[1] || 0);
+    remote.rx += stick(axes[2] || 0); remote.ry -= stick(axes[3] || 0);
+    (pad.buttons || []).forEach((b, i) => {
+      const pressed = Boolean(b && (b.pressed || b.value > 0.5));
+      if (pressed && PAD_BUTTONS[i]) buttons.push(PAD_BUTTONS[i]);
+      if (pressed && !padWasPressed[i] && state.role === "operator") {
+        if (i === 0) send({ type: "loco", verb: "walk" });   // A: stand up, then walk
+        if (i === 1) send({ type: "loco", verb: "damp" });   // B: damp
+      }
+      padWasPressed[i] = pressed;
+    });
+  }
+  // Polled 20 times a second: the DOM is touched only when the text changes.
+  const padText = pad ? `gamepad: ${String(pad.id || "").slice(0, 40)} (sticks walk and turn; A stand, B damp)` : "no gamepad";
+  if ($("gamepad").textContent !== padText) $("gamepad").textContent = padText;
+  for (const axis of ["lx", "ly", "rx", "ry"]) remote[axis] = round(Math.max(-1, Math.min(1, remote[axis])));
+  // Sticks at full tilt ask for the robot's limits (state/loco); keys for KEY_VELOCITY.
+  const limits = (state.loco && state.loco.velocity_limits) || [KEY_VELOCITY.vx, KEY_VELOCITY.vy, KEY_VELOCITY.wz];
+  const scale = pad ? limits : [KEY_VELOCITY.vx, KEY_VELOCITY.vy, KEY_VELOCITY.wz];
+  return { type: "drive", vx: round(remote.ly * scale[0]), vy: round(-remote.lx * scale[1]), wz: round(-remote.rx * scale[2]),
+           buttons, lx: remote.lx, ly: remote.ly, rx: remote.rx, ry: remote.ry };
+}
+
+function isZero(d) {
+  return !d.vx && !d.vy && !d.wz && !d.buttons.length && !d.lx && !d.ly && !d.rx && !d.ry;
+}
+
+// Send what is held when it changed, or again while something is held (the keep-alive).
+function pollDrive(force) {
+  if (state.role !== "operator") return;
+  const input = driveInput();
+  const text = JSON.stringify(input), now = performance.now();
+  // Nothing held since the page opened: nothing to say (a page opening must not stop a robot another drives).
+  if (lastDrive === null && isZero(input) && !force) return;
+  const changed = text !== lastDrive;
+  if (!force && !changed && (isZero(input) || now - lastDriveAt < KEEP_ALIVE_MS)) return;
+  if (!state.connected) return;
+  send(input);
+  lastDrive = text; lastDriveAt = now;
+  state.drive.sent += 1; state.drive.last = input; state.drive.keys = [...held];
+}
+
+function typingIn(target) {
+  const tag = target && target.tagName;
+  return tag === "SELECT" || tag === "TEXTAREA" || (tag === "INPUT" && target.type !== "range" && target.type !== "checkbox");
+}
+
+window.addEventListener("keydown", (ev) => {
+  if (ev.ctrlKey || ev.metaKey || ev.altKey || typingIn(ev.target)) return;
+  const key = ev.key.toLowerCase();
+  if (key === " ") {
+    ev.preventDefault();
+    held.clear();
+    pollDrive(true);   // a stop always goes out, even when nothing was held
+    return;
+  }
+  if (!DRIVE_KEYS.has(key)) return;
+  ev.preventDefault();
+  if (ev.repeat || held.has(key)) return;   // auto-repeat: the keep-alive already repeats
+  held.add(key);
+  pollDrive();
+});
+window.addEventListener("keyup", (ev) => {
+  const key = ev.key.toLowerCase();
+  if (held.delete(key)) pollDrive();
+});
+// A page that loses focus never hears the keyup: let go of everything.
+window.addEventListener("blur", () => { if (held.size) { held.clear(); pollDrive(); } });
+setInterval(pollDrive, GAMEPAD_POLL_MS);
+
+$("btn-stand").addEventListener("click", () => send({ type: "loco", verb: "walk" }));
+$("btn-damp").addEventListener("click", () => send({ type: "loco", verb: "damp" }));
+
+const FSM_NAMES = { 0: "zero torque", 1: "damp", 3: "sit", 500: "walk", 702: "stand up", 706: "stand up" };
+
+function velocityText(v) {
+  return `${v[0].toFixed(2)}, ${v[1].toFixed(2)} m/s, ${v[2].toFixed(2)} rad/s`;
+}
+
+function onLoco(loco, drive) {
+  state.loco = loco;
+  if (!loco) {
+    $("vel-commanded").textContent = $("vel-achieved").textContent = "–";
+    $("loco-state").textContent = "no walking controller (zensim up --loco)";
+    return;
+  }
+  $("vel-commanded").textContent = velocityText(loco.commanded);
+  $("vel-achieved").textContent = velocityText(loco.achieved);
+  const name = FSM_NAMES[loco.fsm_id] || `fsm ${loco.fsm_id}`;
+  $("loco-state").textContent = !loco.active ? "idle: press Stand" :
+    loco.walking ? (loco.stepping ? "stepping" : "standing, ready") : name;
+  if (drive) $("loco-state").title = `drive inputs: ${drive.received} received, ${drive.sent} sent, ${drive.shed} shed`;
+}
+
+// --- the camera follows the selected robot -----------------------------------------------------
+// Each frame moves the camera and its orbit target by as much as the robot's base moved over the
+// ground, so the user's orbit and zoom stay as they were, relative to the robot. Off: the camera stays.
+let followFrom = null, followRecentre = false;
+
+function followedNode() {
+  const robot = selectedRobot();
+  const root = robot ? robot.roots[0] : (state.robot && state.robot.roots ? state.robot.roots[0] : "robot");
+  const paths = state.robot ? state.robot.paths : [];
+  const i = paths.findIndex((p) => p.replace(/^\//, "").startsWith(root + "/"));
+  return i >= 0 && i < nodes.length ? nodes[i] : null;
+}
+
+function followCamera() {
+  const node = followedNode();
+  if (!state.follow || !node) { followFrom = null; return; }
+  const camera = viewer.camera;
+  // The base in the camera's own parent frame (meshcat's is y-up), where position and target live.
+  const at = camera.parent.worldToLocal(node.object.getWorldPosition(camera.position.clone()));
+  if (followRecentre) {
+    followRecentre = false;
+    const offset = camera.position.clone().sub(viewer.controls.target);
+    viewer.controls.target.set(at.x, viewer.controls.target.y, at.z);
+    camera.position.copy(viewer.controls.target).add(offset);
+  } else if (followFrom) {
+    const dx = at.x - followFrom.x, dz = at.z - followFrom.z;   // over the ground: not the body's bobbing
+    camera.position.x += dx; camera.position.z += dz;
+    viewer.controls.target.x += dx; viewer.controls.target.z += dz;
+  }
+  followFrom = at;
+  viewer.controls.update();
+}
+
+$("follow").addEventListener("change", () => { state.follow = $("follow").checked; followFrom = null; });
+
+// For tests: where a link is drawn on the screen now, -1..1 across the view (x right, y up).
+state.screenPosition = (root, link) => {
+  const object = viewer.scene_tree.find([...pathOf(root), link]).object;
+  const p = object.getWorldPosition(viewer.camera.position.clone()).project(viewer.camera);
+  return [p.x, p.y];
+};
 
 connect();
