@@ -12,6 +12,10 @@ from .messages import (
     WIRE_TYPES,
     AdvanceReply,
     AppliedCommand,
+    BandRequest,
+    BandState,
+    PushRequest,
+    PushState,
     BridgeReport,
     CtlReply,
     Gains,
@@ -56,4 +60,5 @@ __all__ = [
     "UnitreeStatus",
     "AdvanceReply", "AppliedCommand", "Ros1Status", "Ros2Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
     "WorldInfo", "WorldRobot", "VelocityCommand", "ArmCommand", "LocoRequest", "LocoStatus", "RemoteState",
+    "BandRequest", "BandState", "PushRequest", "PushState",
 ]

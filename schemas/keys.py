@@ -69,6 +69,8 @@ class Keys:
     ctl_step: str
     ctl_mode: str
     ctl_advance: str
+    ctl_push: str
+    ctl_band: str
     applied: str
     world_pause: str
     world_resume: str

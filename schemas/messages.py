@@ -181,6 +181,15 @@ class SimStatus(Message, frozen=True, tag="sim_status", kw_only=True):
     already waiting (latest wins, so it would never have been applied). Not errors: a flood costs the
     sim one decode per source and take of its command queue. Samples carry their source in zenoh's
     source info (the publisher's id); samples without it count as one source."""
+    pushes: tuple[PushState, ...] = ()
+    """The pushes acting now (ctl/push), oldest first; empty when none is."""
+    pushes_applied: int = 0
+    """Pushes accepted since start (each also reported by `last_push`); a push shorter than a status period
+    still shows here and in `last_push`."""
+    last_push: PushState | None = None
+    """The most recent push accepted (acting or finished), null before the first."""
+    band: BandState | None = None
+    """The elastic band (ctl/band) while it holds the robot; null while it is off."""
 
 
 # --- commands -------------------------------------------------------------
@@ -329,6 +338,107 @@ class CtlReply(Message, frozen=True, tag="ctl_reply", kw_only=True):
     """Physics steps since the last reset, after the request."""
     episode: str = ""
     """SimStatus.episode after the request: a reset or mode switch starts a new one."""
+    push: PushState | None = None
+    """ctl/push: the push that was applied (its force, start and whole-step duration)."""
+    band: BandState | None = None
+    """ctl/band: the band after the request (its `on` false when it is off)."""
+
+
+# --- disturbances: ctl/push, ctl/band (services/sim/disturbances.py) ----------
+
+MAX_PUSH_DURATION_S: Final = 10.0
+"""Longest push, s of sim time: a shove, not a constant force (a longer one is a scenario's business)."""
+MAX_BAND_LENGTH_M: Final = 5.0
+"""Longest band, m: longer than the anchor's height above any spawn, so the band can let a robot stand."""
+BAND_VERBS: Final = ("on", "off", "lower", "raise")
+BandVerb = Literal["on", "off", "lower", "raise"]
+MAX_BODY_NAME_CHARS: Final = 256
+
+
+class PushRequest(Message, frozen=True, tag="push_request", kw_only=True, forbid_unknown_fields=True):
+    """Push a body of the robot with a constant force for a while (ctl/push).
+
+    The force acts at the body's centre of mass, from the next physics step on, for `duration_s` rounded to
+    whole physics steps (at least one). The sim refuses a body the robot lacks and a force beyond 10 times
+    the robot's weight (services/sim/README.md, *Disturbances*).
+    """
+
+    direction: tuple[float, float, float]
+    """Direction of the force in the world frame (any length but zero; the sim normalises it)."""
+    magnitude_n: float
+    """Size of the force, N (> 0)."""
+    duration_s: float
+    """How long it acts, s of sim time, in (0, 10]."""
+    body: str | None = None
+    """The body (URDF link) pushed; null: the robot's base link (the G1's `pelvis`)."""
+
+    def __post_init__(self) -> None:
+        _check_finite("direction", self.direction)
+        if math.fsum(d * d for d in self.direction) <= 0.0:
+            raise ValueError("`direction` must not be zero")
+        _check_finite("magnitude_n", (self.magnitude_n,))
+        if self.magnitude_n <= 0:
+            raise ValueError(f"`magnitude_n` must be > 0, got {self.magnitude_n}")
+        _check_finite("duration_s", (self.duration_s,))
+        if not 0 < self.duration_s <= MAX_PUSH_DURATION_S:
+            raise ValueError(f"`duration_s` must be in (0, {MAX_PUSH_DURATION_S:g}] s, got {self.duration_s}")
+        if self.body is not None and not 0 < len(self.body) <= MAX_BODY_NAME_CHARS:
+            raise ValueError(f"`body` must be 1..{MAX_BODY_NAME_CHARS} characters")
+
+
+class PushState(Message, frozen=True, tag="push_state", kw_only=True):
+    """One push as the sim applies it (CtlReply.push, SimStatus.pushes and last_push)."""
+
+    body: str
+    """The body pushed (URDF link name)."""
+    force_n: Vector
+    """The force, world frame, N."""
+    start_s: float
+    """Sim time of the first step it acts on, s."""
+    duration_s: float
+    """How long it acts: whole physics steps, s."""
+    remaining_s: float = 0.0
+    """Sim time it still acts for, s (0: finished)."""
+    impulse_n_s: Vector = ()
+    """force_n x duration_s, world frame, N s."""
+
+
+class BandRequest(Message, frozen=True, tag="band_request", kw_only=True, forbid_unknown_fields=True):
+    """The elastic band (ctl/band); an empty request changes nothing and answers the band's state.
+
+    `verb`: on, off, lower (the band 0.1 m longer: the robot hangs lower), raise (0.1 m shorter).
+    `length_m` sets the length (alone, or with `on`), not with lower or raise.
+    """
+
+    verb: BandVerb | None = None
+    """on, off, lower or raise."""
+    length_m: float | None = None
+    """The band's rest length, m, in [0, 5]."""
+
+    def __post_init__(self) -> None:
+        if self.length_m is not None:
+            _check_finite("length_m", (self.length_m,))
+            if not 0 <= self.length_m <= MAX_BAND_LENGTH_M:
+                raise ValueError(f"`length_m` must be in [0, {MAX_BAND_LENGTH_M:g}] m, got {self.length_m}")
+            if self.verb in ("lower", "raise"):
+                raise ValueError(f"give `length_m` or `verb: {self.verb}`, not both")
+
+
+class BandState(Message, frozen=True, tag="band_state", kw_only=True):
+    """The elastic band: a spring-damper from a fixed anchor to the base link that only pulls."""
+
+    on: bool
+    """True while it holds the robot."""
+    anchor: Vector
+    """The point it hangs from, world frame, m."""
+    length_m: float
+    """Rest length, m: the band pulls only when the base is farther than this from the anchor."""
+    stiffness_n_m: float
+    """Spring rate, N/m."""
+    damping_n_s_m: float
+    """Damping along the band, N s/m."""
+    force_n: Vector = ()
+    """The force it put on the base at the last step, world frame, N."""
 
 
 # --- description -----------------------------------------------------------
@@ -1011,6 +1121,8 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     StepRequest,
     ModeRequest,
     CtlReply,
+    PushRequest,
+    BandRequest,
     RobotInfo,
     UnitreeStatus,
     AppliedCommand,

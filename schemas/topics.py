@@ -20,6 +20,8 @@ from typing import Final, Generic, Literal, TypeVar
 
 from .messages import (
     AdvanceReply,
+    BandRequest,
+    PushRequest,
     WorldAdvanceReply,
     WorldAdvanceRequest,
     WorldInfo,
@@ -176,6 +178,12 @@ CTL_MODE: Final = Topic("ctl/mode", "queryable", "any client", "sim", "on demand
 CTL_ADVANCE: Final = Topic("ctl/advance", "queryable", "any client (a controller)", "sim",
                            "on demand, under `clock: lockstep`", MotorCommand, AdvanceReply,
                            note="(after the steps ran)", name="ctl_advance")
+CTL_PUSH: Final = Topic("ctl/push", "queryable", "any client (an operator, a test bench)", "sim", "on demand",
+                        PushRequest, CtlReply, note="(a force on a body for a while; `push` says what was applied)",
+                        name="ctl_push")
+CTL_BAND: Final = Topic("ctl/band", "queryable", "any client (an operator, a test bench)", "sim", "on demand",
+                        BandRequest, CtlReply, note="(the elastic band: on, off, lower, raise, a length; `band` says "
+                                                    "its state)", name="ctl_band")
 WORLD_NOTE: Final = "(a world of several robots, `zensim sim --world`: `{robot}` is the world's id)"
 WORLD_PAUSE: Final = Topic("world/pause", "queryable", "any client", "sim (a world)", "on demand", PauseRequest, CtlReply,
                            note=WORLD_NOTE, name="world_pause")
@@ -232,7 +240,7 @@ ROUTER_ALIVE: Final[Topic[Message]] = Topic("alive", "liveliness", "router (one 
 TOPICS: Final[tuple[Topic, ...]] = (
     JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS, ROS2_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
-    CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, APPLIED,
+    CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, CTL_PUSH, CTL_BAND, APPLIED,
     WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE, WORLD_INFO,
     ROBOT_INFO, URDF, MESH, ALIVE, CLAIM, ROUTER_ALIVE,
     VELOCITY, ARMS, CTL_LOCO, LOCO_STATUS, REMOTE,

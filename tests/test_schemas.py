@@ -12,6 +12,9 @@ import pytest
 from zensim.schemas import (
     WIRE_TYPES,
     ArmCommand,
+    CtlReply,
+    PushRequest,
+    SimStatus,
     LocoRequest,
     VelocityCommand,
     Codec,
@@ -84,6 +87,33 @@ SAMPLES["loco_request"] = dict(verb="walk")
 SAMPLES["remote_state"] = dict(buttons=["A", "Up"], lx=0.5, ly=-0.25, rx=0.0, ry=1.0)
 SAMPLES["loco_status"] = dict(seq=3, sim_time_s=4.2, active=True, fsm_id=500, walking=True, stepping=True,
                               commanded=[0.4, 0.0, 0.0], achieved=[0.38, 0.01, 0.0], velocity_received=9)
+
+# Disturbances (issue 29 item 2).
+SAMPLES["push_request"] = dict(direction=[1.0, 0.0, 0.0], magnitude_n=80.0, duration_s=0.2, body="pelvis")
+SAMPLES["band_request"] = dict(verb="on", length_m=0.5)
+PUSH_STATE = dict(body="pelvis", force_n=[80.0, 0.0, 0.0], start_s=2.0, duration_s=0.2, remaining_s=0.1,
+                  impulse_n_s=[16.0, 0.0, 0.0])
+BAND_STATE = dict(on=True, anchor=[0.0, 0.0, 3.05], length_m=0.0, stiffness_n_m=200.0, damping_n_s_m=100.0,
+                  force_n=[0.0, 0.0, 340.0])
+
+
+def test_disturbances_travel_in_the_status_and_the_reply_and_bad_ones_are_refused_on_decode() -> None:
+    status = msgspec.convert({**cast(dict, SAMPLES["sim_status"]), "pushes": [PUSH_STATE], "pushes_applied": 1,
+                              "last_push": PUSH_STATE, "band": BAND_STATE}, SimStatus)
+    for codec_type, message in ((SimStatus, status),
+                                (CtlReply, msgspec.convert(dict(ok=True, push=PUSH_STATE, band=BAND_STATE), CtlReply))):
+        codec: Codec[Any] = Codec(codec_type)
+        for fmt in ("json", "msgpack"):
+            assert codec.decode(codec.encode(message, fmt)) == message
+    # An old status (none of the new fields) reads as no disturbance at all.
+    old = Codec(SimStatus).decode(json.dumps(SAMPLES["sim_status"]).encode(), "application/json")
+    assert old.pushes == () and old.band is None and old.last_push is None and old.pushes_applied == 0
+    push = Codec(PushRequest)
+    with pytest.raises(DecodeError, match="magnitude_n"):
+        push.decode(msgspec.msgpack.encode({**cast(dict, SAMPLES["push_request"]), "magnitude_n": float("inf")}),
+                    "application/msgpack")
+    with pytest.raises(DecodeError, match="direction"):
+        push.decode(b'{"direction": [0, 0, 0], "magnitude_n": 1, "duration_s": 1}', "application/json")
 
 
 def test_walking_messages_refuse_what_no_robot_could_do() -> None:

@@ -196,9 +196,13 @@ def test_viewer_reads_but_cannot_drive_operator_can(secured: tuple[str, Service,
             viewer.put(f"{root}/cmd/motors", "{not json")  # would be counted as rejected if it arrived
             time.sleep(0.02)
         assert list(viewer.get(f"{root}/ctl/pause", payload="{}", timeout=2)) == []
+        push = json.dumps({"direction": [1, 0, 0], "magnitude_n": 50, "duration_s": 0.1})
+        assert list(viewer.get(f"{root}/ctl/push", payload=push, timeout=2)) == []
+        assert list(viewer.get(f"{root}/ctl/band", payload='{"verb": "on"}', timeout=2)) == []
         before = status.value.seq
         seen = status.wait(lambda s: s.seq > before + 5, what="fresh status")
         assert seen.command_age_s is None and seen.rejected_commands == 0 and not seen.paused
+        assert seen.pushes_applied == 0 and seen.rejected_requests == 0
 
         # Nobody but the sim publishes the sim's keys: a viewer's and another operator's forged status
         # never reach this operator (a session's own puts reach its own subscribers without the router).
@@ -216,9 +220,11 @@ def test_viewer_reads_but_cannot_drive_operator_can(secured: tuple[str, Service,
         # The operator drives the sim: its command arrives, its pause pauses.
         operator.put(f"{root}/cmd/motors", motors)
         status.wait(lambda s: s.command_age_s is not None, what="the operator's command to arrive")
+        reply = json.loads(next(iter(operator.get(f"{root}/ctl/push", payload=push, timeout=10))).ok.payload.to_bytes())
+        assert reply["ok"] and reply["push"]["body"] == "pelvis", reply
         reply = json.loads(next(iter(operator.get(f"{root}/ctl/pause", payload="{}", timeout=10))).ok.payload.to_bytes())
         assert reply["ok"], reply
-        status.wait(lambda s: s.paused, what="the sim to pause")
+        status.wait(lambda s: s.paused and s.pushes_applied == 1, what="the sim to pause, the push counted")
     assert sim.alive() and router.alive()
     # The router's audit log names who was refused what.
     for what in (f"is unauthorized to Put (ingress) on {root}/cmd/motors",

@@ -40,6 +40,7 @@ from zensim.schemas import (
 )
 from zensim.schemas.messages import Terrain
 
+from .disturbances import Disturbances
 from .mjdata import actuator_index, actuator_values, base_tilt_rad, reset, write_actuators
 
 logger = logging.getLogger(__name__)
@@ -160,6 +161,8 @@ class Simulation:
         """The watchdog's verdict at the last apply_targets that checked it (or reset, or a command)."""
         self.watchdog_enabled = True
         """False under the lockstep clock: time stands still between commands, so silence is no fault."""
+        self.disturbances = Disturbances(robot, data)
+        """Pushes and the elastic band (ctl/push, ctl/band): forces applied before each step."""
         self.attach(robot, data)
         self.reset()
         self.resets = 0
@@ -171,6 +174,7 @@ class Simulation:
         reset() then puts it in its default pose."""
         self.data = data
         self.robot = robot
+        self.disturbances.attach(robot, data)  # a rebuild: the pushes end, the band keeps its setting
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self._actuators = actuator_index(robot)
@@ -228,6 +232,7 @@ class Simulation:
         self.steps = 0
         self.resets += 1
         self.fallen_since = None
+        self.disturbances.clear_pushes()  # a new episode: no push of the last one acts on; the band holds on
         self._apply(self._targets)
         if self.robot.slot is None:  # a robot of a world: mjdata.reset ran its own forward, the others untouched
             mujoco.mj_forward(self.robot.model, self.data)

@@ -4,7 +4,7 @@ Reads:   cmd/motors (MotorCommand, latest wins at each physics step; under the l
          alone every command advances, in arrival order)
 Writes:  state/joints, state/odom, state/imu (state_rate_hz, sim time), state/sim (SimStatus,
          status_rate_hz, wall time), state/applied (AppliedCommand, lockstep alone: one per advance)
-Serves:  ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode (-> CtlReply), ctl/advance (lockstep alone:
+Serves:  ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode, ctl/push, ctl/band (-> CtlReply), ctl/advance (lockstep alone:
          MotorCommand -> AdvanceReply), info/robot, info/urdf, info/mesh/{path} (common/description.py)
 Token:   alive/sim
 
@@ -41,6 +41,7 @@ from zensim.robots.mesh_files import read_mesh
 from zensim.schemas import (
     AdvanceReply,
     AppliedCommand,
+    BandRequest,
     Codec,
     CtlReply,
     DecodeError,
@@ -49,6 +50,7 @@ from zensim.schemas import (
     ModeRequest,
     MotorCommand,
     PauseRequest,
+    PushRequest,
     ResetRequest,
     ResumeRequest,
     RobotInfo,
@@ -61,6 +63,7 @@ from zensim.schemas.bounds import vector_cap_bytes
 from zensim.schemas.messages import Message
 
 from .engine import Engine
+from .disturbances import DisturbanceError
 from .physics import CommandError
 from .world import WHOLE_WORLD
 from .requests import Request, Requests, run_guarded
@@ -145,6 +148,8 @@ class RobotEndpoint:
             self._ctl("resume", ResumeRequest, self._resume),
             self._ctl("step", StepRequest, self._step),
             self._ctl("mode", ModeRequest, self._mode),
+            self._ctl("push", PushRequest, self._push),
+            self._ctl("band", BandRequest, self._band),
         ]
         if advances:
             self._queryables.append(TypedQueryable(
@@ -171,6 +176,7 @@ class RobotEndpoint:
         """(physics lock held) SimStatus: the robot's figures, with the engine's rate, fall, jitter and wait."""
         self.status_seq += 1
         sim, settings = self.sim, self.settings
+        disturbances = sim.disturbances
         self.pub_status.put(SimStatus(
             sim_time_s=sim.sim_time_s,
             rtf=rtf,
@@ -196,6 +202,10 @@ class RobotEndpoint:
             clock=settings.clock,
             waiting=waiting and self.advances,
             episode=self.episode(),
+            pushes=disturbances.push_states(),
+            pushes_applied=disturbances.pushes_applied,
+            last_push=disturbances.last_push,
+            band=disturbances.band_state() if disturbances.band_holds() else None,
         ))
 
     def jumped(self, rebuilt: bool) -> None:
@@ -334,6 +344,25 @@ class RobotEndpoint:
         if switched:
             self.engine.request_log.info("%s: mode switched to %s", self.keys.robot, request.mode)
         return self._status_reply()
+
+    def _push(self, request: PushRequest) -> CtlReply:
+        try:
+            push = self.sim.disturbances.push(request)
+        except DisturbanceError as exc:
+            return self._status_reply(ok=False, error=bounded(str(exc)))
+        self.engine.request_log.info("%s: push of %.4g N on %s for %.4g s", self.keys.robot, request.magnitude_n,
+                                     push.body, push.duration_s)
+        return msgspec.structs.replace(self._status_reply(), push=push)
+
+    def _band(self, request: BandRequest) -> CtlReply:
+        try:
+            band = self.sim.disturbances.band(request)
+        except DisturbanceError as exc:
+            return self._status_reply(ok=False, error=bounded(str(exc)))
+        if request.verb is not None or request.length_m is not None:
+            self.engine.request_log.info("%s: band %s, %.3g m", self.keys.robot, "on" if band.on else "off",
+                                         band.length_m)
+        return msgspec.structs.replace(self._status_reply(), band=band)
 
     def _status_reply(self, ok: bool = True, error: str | None = None, off_loop: bool = False) -> CtlReply:
         """The reply to a ctl request; `off_loop` on a thread without the physics lock (from the snapshot)."""

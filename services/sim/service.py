@@ -81,6 +81,9 @@ class SimService:
     def __init__(self, session: zenoh.Session, settings: SimSettings, stop: threading.Event, world: World,
                  world_file: WorldFile | None = None) -> None:
         self.world = world
+        if settings.band:  # every floating robot starts on the band (a fixed one is held by its stand)
+            for sim in world.robots:
+                sim.disturbances.band_on = True
         self.engine = engine = Engine(world, settings, stop)
         # A robot alone under lockstep advances on each command; a world's lockstep advances by world/advance.
         advances = settings.clock == "lockstep" and world_file is None

@@ -52,6 +52,8 @@ class SimSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     """Lockstep: physics steps each motor command advances (10 = 20 ms at the G1's 2 ms step)."""
     terrain: str | None = None
     """A terrain file (TOML: slopes, stairs, rough ground, stepping stones, boxes; services/sim/README.md); default flat."""
+    band: bool = False
+    """Start with the elastic band on (ctl/band): each floating robot hangs from a point above its spawn place."""
 
     def __post_init__(self) -> None:
         zero_or_at_least(self.rtf, 0.01, "rtf")

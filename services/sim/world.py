@@ -156,16 +156,21 @@ class World:
         check_watchdog = now >= self._next_watchdog_check
         if check_watchdog:
             self._next_watchdog_check = now + WATCHDOG_CHECK_PERIOD_S
-        if held and n > 1:
+        # A push or the band is a force worked out at every step boundary: then no steps run in one call.
+        disturbed = [sim.disturbances for sim in sims if sim.disturbances.active()]
+        batched = held and n > 1 and not disturbed
+        if batched:
             for sim in sims:
                 sim.apply_targets(check_watchdog)
             mujoco.mj_step2(model, data)
             mujoco.mj_step(model, data, nstep=n - 1)
             mujoco.mj_step1(model, data)
-        for _ in range(0 if held and n > 1 else n):
+        for _ in range(0 if batched else n):
             for sim in sims:
                 sim.apply_targets(check_watchdog)
             check_watchdog = False
+            for disturbances in disturbed:
+                disturbances.apply()
             mujoco.mj_step2(model, data)
             mujoco.mj_step1(model, data)
         self.steps += n

@@ -1,0 +1,90 @@
+"""Step time of the G1 with a push or the elastic band acting against none, side by side (issue 29 item 2).
+
+    .venv/bin/python benchmarks/disturbances.py [--steps 2000] [--rounds 15]
+
+Each case is the sim's own World (services/sim/world.py: the step the service runs) of the G1 floating and
+holding its default pose on its gains, settled for 1 s. The disturbances are kept small, so that the robot
+stands on the same contacts in every case and the figures measure what the disturbances cost, not a
+different pose: a push of 20 N on the pelvis that acts throughout, and the band on, 2.2 m long, taut above
+the standing robot (a pull of about 12 N). Every round times `--steps` steps of each case in turn (cases
+interleaved, so the machine's load falls on all alike), from the same settled state, two ways:
+
+  step      World.step(1) per step: the real-time loop
+  advance   World.step(10, held=True) per lockstep advance: undisturbed, MuJoCo runs the 10 steps in one call
+            (mj_step nstep); disturbed, they run one by one, the force worked out before each
+
+Time is the thread's CPU time (time.thread_time); medians over rounds, and each case's ratio to none.
+Results go to stdout; docs/benchmarks.md keeps the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import mujoco
+
+from zensim.robots import robot_files
+from zensim.schemas import BandRequest, MotorCommand, PushRequest
+from zensim.sim.physics import Limits
+from zensim.sim.world import World
+
+SETTLE_S = 1.0
+CASES = ("none", "push", "band", "push+band")
+
+
+def settled() -> tuple[World, mujoco.MjData]:
+    world = World.alone("bench", robot_files("g1"), "floating", Limits(5000, 500), 1e9)
+    (sim,) = world.robots
+    sim.accept_command(MotorCommand(q=sim.robot.default_q.tolist()))
+    world.step(int(SETTLE_S / world.timestep_s))
+    snapshot = mujoco.MjData(world.model)
+    mujoco.mj_copyData(snapshot, world.model, world.data)
+    return world, snapshot
+
+
+def disturb(world: World, case: str) -> None:
+    """Put the case's disturbances on (from the settled state: no push acts, the band is off)."""
+    disturbances = world.robots[0].disturbances
+    disturbances.clear_pushes()
+    disturbances.band(BandRequest(verb="on" if "band" in case else "off", length_m=2.2))
+    if "push" in case:
+        disturbances.push(PushRequest(direction=(1, 0, 0), magnitude_n=20, duration_s=10))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--rounds", type=int, default=15)
+    args = parser.parse_args()
+    cases = {case: settled() for case in CASES}
+    times: dict[tuple[str, str], list[float]] = {(case, how): [] for case in CASES for how in ("step", "advance")}
+    for _ in range(args.rounds):
+        for how in ("step", "advance"):
+            for case, (world, snapshot) in cases.items():
+                mujoco.mj_copyData(world.data, world.model, snapshot)
+                disturb(world, case)
+                start = time.thread_time()
+                if how == "step":
+                    for _ in range(args.steps):
+                        world.step(1)
+                else:
+                    for _ in range(args.steps // 10):
+                        world.step(10, held=True)
+                times[case, how].append((time.thread_time() - start) / args.steps * 1e6)
+                assert not world.fallen(world.take([0]))[0], f"{case}: the robot fell; the case measures nothing"
+    print(f"{args.rounds} rounds of {args.steps} steps; CPU us per physics step, median (ratio to none)")
+    print(f"{'case':<10} {'step':>16} {'advance':>16}")
+    for case in CASES:
+        cells = []
+        for how in ("step", "advance"):
+            median = statistics.median(times[case, how])
+            base = statistics.median(times["none", how])
+            cells.append(f"{median:7.1f} ({median / base:4.2f})")
+        print(f"{case:<10} {cells[0]:>16} {cells[1]:>16}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

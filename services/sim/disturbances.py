@@ -1,0 +1,231 @@
+"""Disturbances on one robot: pushes and the elastic band, as forces MuJoCo applies. No network.
+
+Both act through `data.xfrc_applied` (a force at a body's centre of mass, world frame), written on the
+thread that steps, before each physics step: a push of `duration_s` acts on exactly round(duration_s /
+timestep) whole steps (at least one), from the step after it was accepted, so its impulse is exact and a
+lockstep run is the same on every replay. A force is written only to rows this robot owns, and a row
+written for a step is cleared at the next step that does not need it: nothing lingers after a push ends,
+the band goes off or the robot is reset.
+
+The elastic band is unitree_mujoco's (simulate_python/unitree_sdk2py_bridge.py `ElasticBand`, and
+simulate/src/elastic_band.h): a spring-damper from a fixed point above the robot to its base, stiffness
+200 N/m, damping 100 N s/m, anchor 3 m up (zensim: 2.2 m above the base's spawn height, where
+unitree_mujoco's G1 spawns at 0.79 m), length 0, lowered and raised 0.1 m at a time (its keys 7 and 8).
+One difference: unitree_mujoco's is a spring both ways and pushes a robot standing under its rest length
+down; this band only pulls (slack below its length, and its damping never makes it push), as a band does.
+With the G1 (35 kg) on a band of length 0 the base hangs 1.7 m below the anchor: the feet 0.5 m up.
+
+Everything here is for the thread holding the engine's physics lock (docs/architecture.md, "Threads").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+
+from zensim.robots.builder import Robot
+from zensim.schemas import BandRequest, BandState, PushRequest, PushState, short_repr
+from zensim.schemas.messages import MAX_BAND_LENGTH_M
+
+STANDARD_GRAVITY_M_S2 = 9.80665
+"""For the push bound: a robot's weight is the same in the fixed mode, where the model's gravity is off."""
+MAX_PUSH_WEIGHTS = 10.0
+"""Largest push, in multiples of the robot's weight (3.4 kN for the G1): ten times what the benchmark of G1
+walking policies pushes with (unitree_rl_gym #99: up to a few hundred N), and still far from forces that
+break the physics. A force of 1e9 N is a typo or an attack, not a test."""
+MAX_ACTIVE_PUSHES = 16
+"""Pushes that may act on one robot at once; one more is refused (they add up; 16 cover any scenario)."""
+BAND_STIFFNESS_N_M = 200.0
+"""unitree_mujoco's ElasticBand.stiffness."""
+BAND_DAMPING_N_S_M = 100.0
+"""unitree_mujoco's ElasticBand.damping."""
+BAND_ANCHOR_ABOVE_SPAWN_M = 2.2
+"""The anchor's height above the base's spawn height: unitree_mujoco hangs the G1 (spawned at 0.79 m) from z = 3 m."""
+BAND_STEP_M = 0.1
+"""What lower and raise change the band's length by (unitree_mujoco's keys 7 and 8)."""
+
+
+class DisturbanceError(ValueError):
+    """A push or band request that does not fit the robot (unknown body, too strong, too many)."""
+
+
+@dataclass
+class Push:
+    """One push being applied."""
+
+    body: str
+    body_id: int
+    force: tuple[float, float, float]
+    """World frame, N."""
+    start_s: float
+    steps: int
+    steps_left: int
+
+    def state(self, timestep_s: float) -> PushState:
+        duration_s = self.steps * timestep_s
+        return PushState(body=self.body, force_n=self.force, start_s=self.start_s, duration_s=duration_s,
+                         remaining_s=self.steps_left * timestep_s,
+                         impulse_n_s=tuple(f * duration_s for f in self.force))
+
+
+class Disturbances:
+    """The pushes and the band of one robot.
+
+    Args:
+        robot: the robot in the world's model.
+        data: the world's MjData.
+    """
+
+    def __init__(self, robot: Robot, data: mujoco.MjData) -> None:
+        self.band_on = False
+        self.band_length_m = 0.0
+        self.pushes_applied = 0
+        self.last_push: PushState | None = None
+        self.attach(robot, data)
+
+    def attach(self, robot: Robot, data: mujoco.MjData) -> None:
+        """Act on `robot` in `data` from now on (at start and after a rebuild): pushes end, the band stays."""
+        self.robot, self.data = robot, data
+        model = robot.model
+        base_name = model.body(robot.base_body_id).name
+        prefix = base_name[: len(base_name) - len(robot.base_link)] if base_name.endswith(robot.base_link) else ""
+        # A robot's bodies are those under its base (the world's terrain and other robots are not).
+        ids = [b for b in range(1, model.nbody) if model.body_rootid[b] == robot.base_body_id]
+        self.bodies = {model.body(b).name.removeprefix(prefix): b for b in ids}
+        """The robot's bodies by URDF link name (a robot of a world: without its prefix)."""
+        self.weight_n = float(sum(model.body_mass[b] for b in ids)) * STANDARD_GRAVITY_M_S2
+        self.max_push_n = MAX_PUSH_WEIGHTS * self.weight_n
+        self.floating = robot.free_qpos_adr >= 0
+        self.anchor = (*robot.spawn_xy, robot.base_height_m + BAND_ANCHOR_ABOVE_SPAWN_M)
+        """The band's fixed point, world frame, m: above the robot's spawn place."""
+        self.band_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.pushes: list[Push] = []
+        self._written: set[int] = set()
+        """Rows of xfrc_applied written for the last step (cleared at the next step that does not need them)."""
+
+    # --- requests (physics lock held) ----------------------------------------------------------
+
+    def push(self, request: PushRequest) -> PushState:
+        """Start a push at the next step.
+
+        Raises:
+            DisturbanceError: an unknown body, a force beyond the bound, too many pushes at once.
+        """
+        body = request.body or self.robot.base_link
+        body_id = self.bodies.get(body)
+        if body_id is None:
+            known = ", ".join(sorted(self.bodies)[:8])
+            raise DisturbanceError(f"ctl/push: no body {short_repr(body)} in {self.robot.name} (its links: {known}, ...)")
+        if request.magnitude_n > self.max_push_n:
+            raise DisturbanceError(
+                f"ctl/push: {request.magnitude_n:g} N is beyond {self.max_push_n:.4g} N, {MAX_PUSH_WEIGHTS:g} x the "
+                f"robot's weight ({self.weight_n:.4g} N): no bench pushes that hard; nothing was applied")
+        if len(self.pushes) >= MAX_ACTIVE_PUSHES:
+            raise DisturbanceError(f"ctl/push: {MAX_ACTIVE_PUSHES} pushes act already; wait for one to end")
+        norm = math.sqrt(math.fsum(d * d for d in request.direction))
+        fx, fy, fz = (request.magnitude_n * d / norm for d in request.direction)
+        force = (fx, fy, fz)
+        timestep_s = float(self.robot.model.opt.timestep)
+        steps = max(1, round(request.duration_s / timestep_s))
+        push = Push(body, body_id, force, float(self.data.time), steps, steps)
+        self.pushes.append(push)
+        self.pushes_applied += 1
+        self.last_push = state = push.state(timestep_s)
+        return state
+
+    def band(self, request: BandRequest) -> BandState:
+        """Switch, lower, raise or set the band; an empty request changes nothing.
+
+        Raises:
+            DisturbanceError: on in the fixed mode (the base is welded), lower or raise past the bounds.
+        """
+        verb, length = request.verb, self.band_length_m
+        if verb == "on" and not self.floating:
+            raise DisturbanceError("ctl/band: the robot is in the fixed mode, its base welded on its stand: "
+                                   "there is nothing to hold")
+        if verb == "lower":
+            length += BAND_STEP_M
+            if length > MAX_BAND_LENGTH_M + 1e-9:
+                raise DisturbanceError(f"ctl/band: the band is {self.band_length_m:.3g} m long, at most "
+                                       f"{MAX_BAND_LENGTH_M:g}: it cannot be lowered further")
+        elif verb == "raise":
+            length -= BAND_STEP_M
+            if length < -1e-9:
+                raise DisturbanceError("ctl/band: the band is at its shortest (0 m): it cannot be raised further")
+        if request.length_m is not None:
+            length = request.length_m
+        self.band_length_m = min(max(length, 0.0), MAX_BAND_LENGTH_M)
+        if verb in ("on", "off"):
+            self.band_on = verb == "on"
+        return self.band_state()
+
+    def band_state(self) -> BandState:
+        return BandState(on=self.band_holds(), anchor=self.anchor, length_m=self.band_length_m,
+                         stiffness_n_m=BAND_STIFFNESS_N_M, damping_n_s_m=BAND_DAMPING_N_S_M,
+                         force_n=self.band_force)
+
+    def band_holds(self) -> bool:
+        """Whether the band acts (on, and a base that can hang: the floating mode)."""
+        return self.band_on and self.floating
+
+    def push_states(self) -> tuple[PushState, ...]:
+        timestep_s = float(self.robot.model.opt.timestep)
+        return tuple(push.state(timestep_s) for push in self.pushes)
+
+    def clear_pushes(self) -> None:
+        """End every push now (a reset): their rows are cleared at once."""
+        self.pushes.clear()
+        for row in self._written:
+            self.data.xfrc_applied[row, :3] = 0.0
+        self._written.clear()
+        self.band_force = (0.0, 0.0, 0.0)
+
+    # --- stepping ------------------------------------------------------------------------------
+
+    def active(self) -> bool:
+        """Whether the next step needs `apply` (a force acts, or one written for the last step must go)."""
+        return bool(self.pushes) or self.band_holds() or bool(self._written)
+
+    def apply(self) -> None:
+        """Before one physics step: write this step's forces (and clear last step's rows no force needs now).
+
+        Plain floats, not numpy: on 3-vectors numpy's call overhead is the cost (the band's force in numpy took
+        5 us a step, a sixth of the G1's whole step; benchmarks/disturbances.py).
+        """
+        xfrc = self.data.xfrc_applied
+        forces: dict[int, list[float]] = {}
+        if self.band_holds():
+            self.band_force = self._band_force()
+            forces[self.robot.base_body_id] = list(self.band_force)
+        if self.pushes:
+            for push in self.pushes:
+                total = forces.get(push.body_id)
+                if total is None:
+                    forces[push.body_id] = list(push.force)
+                else:
+                    forces[push.body_id] = [a + b for a, b in zip(total, push.force)]
+                push.steps_left -= 1
+            self.pushes = [push for push in self.pushes if push.steps_left > 0]
+        if self._written:
+            for row in self._written.difference(forces):
+                xfrc[row, :3] = 0.0
+        for row, force in forces.items():
+            xfrc[row, :3] = force
+        self._written = set(forces)
+
+    def _band_force(self) -> tuple[float, float, float]:
+        """The band's pull on the base now: spring past its length, damped along it, never a push."""
+        robot, data = self.robot, self.data
+        ax, ay, az = self.anchor
+        px, py, pz = data.xpos[robot.base_body_id].tolist()
+        dx, dy, dz = ax - px, ay - py, az - pz
+        distance = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if distance <= self.band_length_m or distance == 0.0:
+            return (0.0, 0.0, 0.0)
+        ux, uy, uz = dx / distance, dy / distance, dz / distance
+        vx, vy, vz = data.qvel[robot.free_dof_adr:robot.free_dof_adr + 3].tolist()  # the base's, world frame
+        pull = BAND_STIFFNESS_N_M * (distance - self.band_length_m) - BAND_DAMPING_N_S_M * (vx * ux + vy * uy + vz * uz)
+        pull = max(pull, 0.0)
+        return (pull * ux, pull * uy, pull * uz)
