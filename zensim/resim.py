@@ -36,10 +36,11 @@ import numpy as np
 
 from zensim.common.settings import settings_or_exit
 from zensim.robots import robot_files
-from zensim.schemas import AppliedCommand, Imu, JointState, MotorCommand, Odometry, ResetRequest
+from zensim.schemas import AppliedCommand, JointState, MotorCommand, Odometry, ResetRequest
 from zensim.schemas.messages import MAX_STEPS_PER_REQUEST
 from zensim.sim.physics import CommandError, Limits
 from zensim.sim.world import World
+from zensim.sim.world_states import States
 
 from .mcapfile import Recording, read_recording
 from .replay import leading_file_argument
@@ -102,7 +103,8 @@ class Divergence:
         if joints is None and odom is None:
             return
         self.compared += 1
-        mine, mine_odom, _imu = read_states(world)
+        now = read_states(world)
+        mine, mine_odom = now.joints, now.odom
         if joints is not None:
             self.joint_rad = max(self.joint_rad, float(np.max(np.abs(np.subtract(mine.q, joints.q)))))
         if odom is not None:
@@ -110,7 +112,7 @@ class Divergence:
             self.base_rot_rad = max(self.base_rot_rad, rotation_between(mine_odom.quat_wxyz, odom.quat_wxyz))
 
 
-def read_states(world: World) -> tuple[JointState, Odometry, Imu]:
+def read_states(world: World) -> States:
     """The robot's states now, read as the sim reads them (the world's one state reader)."""
     return world.reader.read(world.data, [0])[0]
 
@@ -165,7 +167,8 @@ def place(world: World, joints: JointState, odom: Odometry) -> bool:
     """
     (sim,) = world.robots
     sim.reset(ResetRequest(q=tuple(joints.q), base_height_m=odom.pos[2]))
-    mine, mine_odom, _imu = read_states(world)
+    now = read_states(world)
+    mine, mine_odom = now.joints, now.odom
     if joints.sim_time_s == 0.0 and list(mine.q) == list(joints.q) \
             and list(mine_odom.pos) == list(odom.pos) and list(mine_odom.quat_wxyz) == list(odom.quat_wxyz):
         return True
