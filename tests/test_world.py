@@ -110,9 +110,10 @@ def test_robots_collide_and_a_reset_of_one_leaves_the_others_bit_identical(tmp_p
     b.reset()
     assert world.data.time == t
     assert pos(world, "b") == pytest.approx([1.0, 0.0, b.robot.base_height_m])
-    for name, (joints, odom, _imu) in before.items():
-        now_joints, now_odom, _ = states(world, name)
-        assert now_joints == joints and now_odom == odom
+    for name, (joints, odom, _imu, contacts) in before.items():
+        now = states(world, name)
+        # The others' contact forces too: they are the step's, and b's reset ran its own mj_forward.
+        assert now.joints == joints and now.odom == odom and now.contacts == contacts
 
 
 def test_bad_world_files_are_refused_with_the_reason(tmp_path: Path) -> None:
