@@ -64,7 +64,7 @@ SAMPLES.update({
 SAMPLES["contacts"] = dict(sim_time_s=1.5, seq=7, links=["left_ankle_roll_link", "right_ankle_roll_link"],
                            in_contact=[False, True], normal_force_n=[0.0, 344.5],
                            force_world=[[0.0, 0.0, 0.0], [1.5, -0.2, 344.4]], points=[0, 4])
-SAMPLES["advance_reply"] = {**SAMPLES["advance_reply"], "contacts": SAMPLES["contacts"]}
+SAMPLES["advance_reply"] = {**cast(dict, SAMPLES["advance_reply"]), "contacts": SAMPLES["contacts"]}
 # A world's lockstep (issue 21).
 SAMPLES["world_advance_request"] = dict(commands={"g1a": SAMPLES["motor_command"]})
 SAMPLES["world_advance_reply"] = dict(ok=True, sim_time_s=0.02, steps=10, states={"g1a": dict(
