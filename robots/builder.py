@@ -70,6 +70,25 @@ _SENSORS: Final = {
     "base_linvel": (mujoco.mjtSensor.mjSENS_FRAMELINVEL, mujoco.mjtObj.mjOBJ_XBODY, "base", 3),
     "base_angvel": (mujoco.mjtSensor.mjSENS_FRAMEANGVEL, mujoco.mjtObj.mjOBJ_XBODY, "base", 3),
 }
+# Each foot link (control.toml `foot_links`) carries two MuJoCo contact sensors over every contact of its
+# body (the floor, terrain, another robot). They are computed in the acceleration stage of a step (from the
+# constraint forces it solved), so between steps sensordata holds the forces that acted during the step
+# that just ended, like the accelerometer. A contact force read between steps with mj_contactForce would
+# read the solver's arrays of the step before, laid out for the contacts of the step before.
+FOOT_NET_SUFFIX: Final = "_contact_net"
+"""The net contact force on the foot: [contacts found, force (3, world frame, exerted BY the foot)]."""
+FOOT_NET_DIM: Final = 4
+FOOT_POINTS_SUFFIX: Final = "_contact_points"
+"""The strongest contacts of the foot, each its force in its own contact frame (normal first)."""
+FOOT_POINTS: Final = 8
+"""Contacts of one foot whose normal forces are summed (the strongest first); a G1 sole (a box on the floor)
+makes 4. A foot with more loses the weakest from its normal force (not from its net force)."""
+_CONTACT_DATA_FOUND: Final = 1 << int(mujoco.mjtConDataField.mjCONDATA_FOUND)
+_CONTACT_DATA_FORCE: Final = 1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE)
+_CONTACT_REDUCE_MAXFORCE: Final = 2
+"""A contact sensor's `reduce` (intprm[1]), as MJCF's reduce="maxforce": the strongest contacts first."""
+_CONTACT_REDUCE_NETFORCE: Final = 3
+"""reduce="netforce": one synthetic contact carrying the sum of the forces, in the world frame."""
 
 
 @dataclass
@@ -102,7 +121,10 @@ class Robot:
     """qpos address of the free joint (floating mode), -1 in the fixed mode."""
     free_dof_adr: int = -1
     sensor_slices: dict[str, slice] = field(default_factory=dict)
-    """Name -> slice of data.sensordata for the sensors in _SENSORS."""
+    """Name -> slice of data.sensordata for the sensors in _SENSORS, and each foot's contact sensors
+    (`{link}_contact_net`, `{link}_contact_points`)."""
+    foot_links: tuple[str, ...] = ()
+    """The links matching control.toml's `foot_links`, in the URDF's order (the G1: left, then right)."""
     armature: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """Rotor armature per joint, kg m^2, canonical order."""
     control_path: Path | None = None
@@ -194,6 +216,7 @@ class _Prepared:
     kd: np.ndarray
     default_q: np.ndarray
     armature: np.ndarray
+    foot_links: tuple[str, ...] = ()
 
 
 def _apply_inertia_floors(spec: mujoco.MjSpec, mass_floor: float, inertia_floor: float) -> None:
@@ -299,7 +322,22 @@ def _prepare(files: RobotFiles, mode: Mode, terrain: Terrain | None = None) -> _
     for name, (stype, otype, which, _dim) in _SENSORS.items():
         spec.add_sensor(name=name, type=stype, objtype=otype,
                         objname=model_cfg.imu_site if which == "imu" else base_link)
-    return _Prepared(spec, info, joints, control, text, mesh_files, base_link, imu_link, kp, kd, default_q, armature)
+    feet = tuple(body.name for body in spec.bodies
+                 if any(fnmatch.fnmatchcase(body.name, p) for p in model_cfg.foot_links))
+    for foot in feet:
+        _add_foot_sensors(spec, foot)
+    return _Prepared(spec, info, joints, control, text, mesh_files, base_link, imu_link, kp, kd, default_q, armature,
+                     feet)
+
+
+def _add_foot_sensors(spec: mujoco.MjSpec, link: str) -> None:
+    """A foot's two contact sensors (FOOT_NET_SUFFIX, FOOT_POINTS_SUFFIX) over the contacts of its body."""
+    for suffix, data, reduce, num in (
+            (FOOT_NET_SUFFIX, _CONTACT_DATA_FOUND | _CONTACT_DATA_FORCE, _CONTACT_REDUCE_NETFORCE, 1),
+            (FOOT_POINTS_SUFFIX, _CONTACT_DATA_FORCE, _CONTACT_REDUCE_MAXFORCE, FOOT_POINTS)):
+        sensor = spec.add_sensor(name=link + suffix, type=mujoco.mjtSensor.mjSENS_CONTACT,
+                                 objtype=mujoco.mjtObj.mjOBJ_BODY, objname=link)
+        sensor.intprm[0], sensor.intprm[1], sensor.intprm[2] = data, reduce, num
 
 
 def _compile(prepared: _Prepared, files: RobotFiles) -> mujoco.MjModel:
@@ -365,6 +403,11 @@ def _robot_from(prepared: _Prepared, model: mujoco.MjModel, files: RobotFiles, m
         sid = find(mujoco.mjtObj.mjOBJ_SENSOR, name)
         adr = int(model.sensor_adr[sid])
         sensor_slices[name] = slice(adr, adr + int(model.sensor_dim[sid]))
+    for foot in prepared.foot_links:
+        for suffix in (FOOT_NET_SUFFIX, FOOT_POINTS_SUFFIX):
+            sid = find(mujoco.mjtObj.mjOBJ_SENSOR, foot + suffix)
+            adr = int(model.sensor_adr[sid])
+            sensor_slices[foot + suffix] = slice(adr, adr + int(model.sensor_dim[sid]))
 
     return Robot(
         model=model,
@@ -395,6 +438,7 @@ def _robot_from(prepared: _Prepared, model: mujoco.MjModel, files: RobotFiles, m
         armature=prepared.armature,
         control_path=files.control,
         slot=slot,
+        foot_links=prepared.foot_links,
     )
 
 

@@ -54,6 +54,7 @@ class Keys:
     joints: str
     odom: str
     imu: str
+    contacts: str
     sim_status: str
     bridge_targets: str
     unitree_status: str

@@ -122,6 +122,30 @@ class Imu(Message, frozen=True, tag="imu", kw_only=True):
     """Specific force in the IMU frame (reads +9.81 on z at rest), m/s^2."""
 
 
+class Contacts(Message, frozen=True, tag="contacts", kw_only=True):
+    """Each foot's contact with the world at one sim instant (the feet are control.toml's `foot_links`).
+
+    What acted during the physics step that ended at `sim_time_s` (as JointState's `tau`), summed over
+    every contact of the foot's link: the floor, terrain, another robot. One entry per foot, in the
+    order of `links`; a robot without feet has none. `seq` is the JointState's of the same instant.
+    """
+
+    sim_time_s: float
+    """Simulation time this state describes, s."""
+    seq: int
+    """The `seq` of the JointState (and Odometry, Imu) of the same instant."""
+    links: tuple[str, ...]
+    """The foot links, URDF names (the G1: `left_ankle_roll_link`, `right_ankle_roll_link`)."""
+    in_contact: tuple[bool, ...]
+    """Whether the foot touches anything (at least one contact point)."""
+    normal_force_n: Vector
+    """Sum of the contact points' normal forces on the foot, N (>= 0; what a sole pressure sensor reads)."""
+    force_world: tuple[Vector, ...]
+    """Total contact force on the foot [x, y, z] in the world frame, N (normal and friction; +z pushes up)."""
+    points: tuple[int, ...]
+    """Number of contact points of the foot."""
+
+
 class SimStatus(Message, frozen=True, tag="sim_status", kw_only=True):
     """The sim's health, about 10 times a second."""
 
@@ -571,6 +595,8 @@ class AdvanceReply(Message, frozen=True, tag="advance_reply", kw_only=True):
     """Base odometry of the new instant (as published on state/odom)."""
     imu: Imu | None = None
     """IMU reading of the new instant (as published on state/imu)."""
+    contacts: Contacts | None = None
+    """Foot contacts of the new instant (as published on state/contacts); null from a sim that does not say."""
 
 
 class WorldAdvanceRequest(Message, frozen=True, tag="world_advance_request", kw_only=True,
@@ -583,11 +609,13 @@ class WorldAdvanceRequest(Message, frozen=True, tag="world_advance_request", kw_
 
 
 class RobotStates(Message, frozen=True, tag="robot_states", kw_only=True):
-    """One robot's states of one instant, as published on its state/joints, state/odom and state/imu."""
+    """One robot's states of one instant, as published on its state/joints, state/odom, state/imu and state/contacts."""
 
     joints: JointState
     odom: Odometry
     imu: Imu
+    contacts: Contacts | None = None
+    """Null from a sim that does not say."""
 
 
 class WorldAdvanceReply(Message, frozen=True, tag="world_advance_reply", kw_only=True):
@@ -1111,6 +1139,7 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     JointState,
     Odometry,
     Imu,
+    Contacts,
     SimStatus,
     MotorCommand,
     JointTargets,

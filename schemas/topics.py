@@ -27,6 +27,7 @@ from .messages import (
     WorldInfo,
     AppliedCommand,
     BridgeReport,
+    Contacts,
     CtlReply,
     Imu,
     JointState,
@@ -149,6 +150,9 @@ JOINTS: Final = Topic("state/joints", "publication", "sim", "anyone", "100 Hz de
                       JointState, name="joints")
 ODOM: Final = Topic("state/odom", "publication", "sim", "anyone", "with `state/joints`", Odometry, name="odom")
 IMU: Final = Topic("state/imu", "publication", "sim", "anyone", "with `state/joints`", Imu, name="imu")
+CONTACTS: Final = Topic("state/contacts", "publication", "sim", "anyone (a contact estimator), unitree (foot_force)",
+                        "with `state/joints` (the same `seq`)", Contacts,
+                        note="(per foot link: in contact, normal force, force in the world frame)", name="contacts")
 SIM_STATUS: Final = Topic("state/sim", "publication", "sim", "anyone", "~10 Hz wall time (`status_rate_hz`)", SimStatus, name="sim_status")
 BRIDGE_TARGETS: Final = Topic("state/targets", "publication", "bridge", "viz (ghost), anyone",
                               "`targets_rate_hz`, default 30 Hz", JointTargets,
@@ -238,7 +242,7 @@ ROUTER_ALIVE: Final[Topic[Message]] = Topic("alive", "liveliness", "router (one 
                                             note="(the router serves every robot: its `alive/router` names only its own robot id)")
 
 TOPICS: Final[tuple[Topic, ...]] = (
-    JOINTS, ODOM, IMU, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS, ROS2_STATUS,
+    JOINTS, ODOM, IMU, CONTACTS, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS, ROS2_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
     CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, CTL_PUSH, CTL_BAND, APPLIED,
     WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE, WORLD_INFO,
@@ -292,7 +296,7 @@ EVERY_ROLE_WATCHES: Final = ("alive/*", "claim/*")
 """Liveliness every role may watch (liveliness subscribers and queries): who is up is no secret."""
 
 ROLES: Final[tuple[Role, ...]] = (
-    Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim", "alive/world", "claim/*")),
+    Role("sim", "service", "the simulator", publishes=("state/joints", "state/odom", "state/imu", "state/contacts", "state/sim", "state/applied"), subscribes=("cmd/motors",), serves=("ctl/*", "info/**", "world/*"), tokens=("alive/sim", "alive/world", "claim/*")),
     Role("bridge", "service", "joint targets to motor commands", publishes=("cmd/motors", "state/targets", "report/bridge"), subscribes=("state/**", "cmd/joints", "cmd/joint/*"), queries=("info/**",), tokens=("alive/bridge",)),
     Role("viz", "service", "the web viewer (sliders, buttons, plots, keys and gamepad)", publishes=("cmd/joints", "cmd/velocity", "cmd/remote"), subscribes=("state/**", "cmd/motors"), queries=("info/**", "ctl/*", "world/info", "world/pause", "world/resume", "world/step"), tokens=("alive/viz",)),
     Role("unitree", "service", "the Unitree DDS adapter (its sport service forwards to `zensim loco`)", publishes=("cmd/motors", "state/unitree", "cmd/velocity", "cmd/arms"), subscribes=("state/**", "cmd/remote"), queries=("info/**", "ctl/loco"), tokens=("alive/unitree",)),

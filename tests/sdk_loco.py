@@ -35,7 +35,7 @@ def main() -> None:
             m = latest[0] if latest else None
             result = None if m is None else {"position": list(m.position), "velocity": list(m.velocity),
                                             "mode": m.mode, "sec": m.stamp.sec, "nanosec": m.stamp.nanosec,
-                                            "yaw": m.imu_state.rpy[2]}
+                                            "yaw": m.imu_state.rpy[2], "foot_force": list(m.foot_force)}
         else:
             result = getattr(client, name)(*args)
         print(json.dumps({"result": result}), flush=True)

@@ -76,7 +76,7 @@ class TestRecord:
             topics = {c.topic: c for c in summary.channels.values()}
             root = f"zensim/{robot_id}"
             for relative, schema in [("state/joints", "joint_state"), ("state/odom", "odometry"), ("state/imu", "imu"),
-                                     ("state/sim", "sim_status"), ("state/applied", "applied_command"),
+                                     ("state/contacts", "contacts"), ("state/sim", "sim_status"), ("state/applied", "applied_command"),
                                      ("cmd/motors", "motor_command")]:
                 channel = topics[f"{root}/{relative}"]
                 assert channel.message_encoding == "json"
@@ -86,6 +86,7 @@ class TestRecord:
             counts = summary.statistics.channel_message_counts
             by_topic = {summary.channels[c].topic: n for c, n in counts.items()}
             assert by_topic[f"{root}/state/applied"] == 120
+            assert by_topic[f"{root}/state/contacts"] >= 120  # one per advance (and the start's): resim compares them
             assert by_topic[f"{root}/cmd/motors"] == 60
             attachments = {a.name: a for a in reader.iter_attachments()}
             assert json.loads(attachments["info/robot"].data)["robot"] == robot_id
@@ -100,7 +101,8 @@ class TestRecord:
         result = zensim("resim", str(path))
         assert result.returncode == 0, result.stderr
         assert "lockstep recording" in result.stdout and "120 commands" in result.stdout, result.stdout
-        assert "joint position 0 rad, base position 0 m, base orientation 0 rad" in result.stdout, result.stdout
+        assert ("joint position 0 rad, base position 0 m, base orientation 0 rad, foot normal force 0 N"
+                in result.stdout), result.stdout
 
     def test_realtime_recording_resims_and_says_what_the_divergence_means(self, start_service, zsession, robot_id, tmp_path) -> None:
         keys = Keys(robot_id)

@@ -63,10 +63,15 @@ SAMPLES.update({
     "advance_reply": dict(ok=True, sim_time_s=0.04, steps=20, joints=SAMPLES["joint_state"], odom=SAMPLES["odometry"],
                           imu=SAMPLES["imu"]),
 })
+# Foot contacts (issue 29 item 5): two feet, one in the air; a reply of the new instant may carry them.
+SAMPLES["contacts"] = dict(sim_time_s=1.5, seq=7, links=["left_ankle_roll_link", "right_ankle_roll_link"],
+                           in_contact=[False, True], normal_force_n=[0.0, 344.5],
+                           force_world=[[0.0, 0.0, 0.0], [1.5, -0.2, 344.4]], points=[0, 4])
+SAMPLES["advance_reply"] = {**cast(dict, SAMPLES["advance_reply"]), "contacts": SAMPLES["contacts"]}
 # A world's lockstep (issue 21).
 SAMPLES["world_advance_request"] = dict(commands={"g1a": SAMPLES["motor_command"]})
 SAMPLES["world_advance_reply"] = dict(ok=True, sim_time_s=0.02, steps=10, states={"g1a": dict(
-    joints=SAMPLES["joint_state"], odom=SAMPLES["odometry"], imu=SAMPLES["imu"])})
+    joints=SAMPLES["joint_state"], odom=SAMPLES["odometry"], imu=SAMPLES["imu"], contacts=SAMPLES["contacts"])})
 # A world's robots, for the viewer (issue 21).
 SAMPLES["world_info"] = dict(world="lab", robots=[dict(robot="g1a", model="g1_29dof", mode="floating", xy=[0.0, 0.0]),
                                                   dict(robot="arm", model="arm", mode="fixed", xy=[0.0, 3.0], yaw_deg=90.0)])

@@ -166,6 +166,10 @@ def lockstep_stack(tmp_path_factory, request):
     yield from _stack(tmp_path_factory, request, "lockstep")
 
 
+G1_WEIGHT_N = 344.45
+"""The bundled G1's total mass x g (tests/test_contacts_process.py reads it from the model)."""
+
+
 def fresh_start(stack: Stack) -> str:
     """The robot as after boot, whatever ran before: the controller released (the motion switcher's
     ReleaseMode, as a low-level program does it), the sim reset to its spawn squat."""
@@ -242,6 +246,11 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         drift = math.dist(settled.pos[:2], later.pos[:2])
         assert drift < 0.25, (settled.pos, later.pos)
         wait_for(lambda: loco.call("odommodestate")["mode"] == 1, 10, "SportModeState_ to say standing", 0.02)
+        # Standing on both feet, as the SDK's own type reads foot_force: the sim's contact normal forces, N
+        # (left, right; a quadruped's hind feet stay 0), together the robot's weight give or take its sway.
+        left, right, *hind = loco.call("odommodestate")["foot_force"]
+        assert hind == [0, 0] and left > 50 and right > 50, (left, right, hind)
+        assert 0.75 * G1_WEIGHT_N < left + right < 1.25 * G1_WEIGHT_N, (left, right)
         # Turns in place: 0.3 rad/s for at most 5 s.
         before_turn = stack.odom.value
         loco.call("Move", 0, 0, 0.3, True)

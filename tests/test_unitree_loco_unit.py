@@ -13,8 +13,9 @@ from zensim.loco.controller import ArmBlend, LocoController
 from zensim.loco.walk_policy import NUM_OBS, WalkPolicy, double_support, gravity_in_body, load_weights, observation
 from zensim.robots import BUNDLED_DIR
 from zensim.robots.walking import load_walking
-from zensim.schemas import ArmCommand, LocoStatus
+from zensim.schemas import ArmCommand, Contacts, LocoStatus
 from zensim.unitree import sport
+from zensim.unitree.highlevel import foot_force
 
 UPRIGHT = np.array([1.0, 0.0, 0.0, 0.0])
 WALKING = load_walking(BUNDLED_DIR / "unitree_g1" / "walking.toml")
@@ -297,3 +298,16 @@ def test_policy_converter_rebuilds_tensors_and_refuses_any_other_global(tmp_path
     _torchscript_zip(tmp_path / "evil.pt", evil, {})
     with pytest.raises(pickle.UnpicklingError, match="refusing to load os.system"):
         load_torchscript(tmp_path / "evil.pt")
+
+
+def test_foot_force_is_each_foots_normal_force_in_newtons_within_int16():
+    def contacts(*normal: float) -> Contacts:
+        n = len(normal)
+        return Contacts(sim_time_s=1.0, seq=1, links=tuple(f"foot{i}" for i in range(n)), in_contact=(True,) * n,
+                        normal_force_n=normal, force_world=((0.0, 0.0, 0.0),) * n, points=(1,) * n)
+
+    assert foot_force(None) == [0, 0, 0, 0]  # no contacts seen yet
+    assert foot_force(contacts()) == [0, 0, 0, 0]  # a robot without feet
+    assert foot_force(contacts(172.4, 171.6)) == [172, 172, 0, 0]  # the G1: left, right; no hind feet
+    # Anyone may publish a state: what is no force reads 0, what int16 cannot hold its largest; never raises.
+    assert foot_force(contacts(math.nan, -5.0, math.inf, 1e9, 3.0)) == [0, 0, 0, 32767]

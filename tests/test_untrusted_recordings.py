@@ -124,7 +124,7 @@ def lockstep_states(steps: int = 10, commands: int = 5) -> list[tuple[str, Any]]
     sim.watchdog_enabled = False
 
     def states(seq: int) -> list[tuple[str, object]]:
-        joints, odom, _imu = world.reader.read(world.data, [seq])[0]
+        joints, odom, _imu, _contacts = world.reader.read(world.data, [seq])[0]
         return [("state/joints", joints), ("state/odom", odom)]
 
     items = states(0)

@@ -9,11 +9,12 @@ import pytest
 
 from support import TWO_JOINT_ARM
 from zensim.common.session import StartupError
-from zensim.schemas import Imu, JointState, MotorCommand, Odometry
+from zensim.schemas import MotorCommand
 from zensim.sim.mjdata import read_base, read_imu
 from zensim.sim.service import load_world
 from zensim.sim.settings import SimSettings
 from zensim.sim.world import World
+from zensim.sim.world_states import States
 from zensim.sim.world_file import read_world_file
 
 
@@ -24,7 +25,7 @@ def make_world(tmp_path: Path, body: str) -> World:
     return load_world(SimSettings(world=str(path)))[0]
 
 
-def states(world: World, robot: str) -> tuple[JointState, Odometry, Imu]:
+def states(world: World, robot: str) -> States:
     """One robot's states now, as the sim reads them (the world's one reader)."""
     return world.reader.read(world.data, [0] * len(world))[list(world.sims).index(robot)]
 
@@ -76,7 +77,7 @@ def test_one_reader_for_all_robots_says_what_each_robot_says(tmp_path: Path) -> 
     hold(world, "a", {"left_elbow_joint": 1.0})
     world.step(300)
     data = world.data
-    for (joints, odom, imu), sim in zip(world.reader.read(data, [7, 8, 9]), world.sims.values()):
+    for (joints, odom, imu, _contacts), sim in zip(world.reader.read(data, [7, 8, 9]), world.sims.values()):
         robot = sim.robot
         assert joints.seq == 7 + list(world.sims.values()).index(sim) and joints.sim_time_s == data.time
         assert joints.q == data.qpos[robot.qpos_adr].tolist() and joints.dq == data.qvel[robot.dof_adr].tolist()
@@ -109,9 +110,10 @@ def test_robots_collide_and_a_reset_of_one_leaves_the_others_bit_identical(tmp_p
     b.reset()
     assert world.data.time == t
     assert pos(world, "b") == pytest.approx([1.0, 0.0, b.robot.base_height_m])
-    for name, (joints, odom, _imu) in before.items():
-        now_joints, now_odom, _ = states(world, name)
-        assert now_joints == joints and now_odom == odom
+    for name, (joints, odom, _imu, contacts) in before.items():
+        now = states(world, name)
+        # The others' contact forces too: they are the step's, and b's reset ran its own mj_forward.
+        assert now.joints == joints and now.odom == odom and now.contacts == contacts
 
 
 def test_bad_world_files_are_refused_with_the_reason(tmp_path: Path) -> None:

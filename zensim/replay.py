@@ -1,7 +1,7 @@
 """`zensim replay FILE [--rate R] [--robot-id ID]`: publish a recording's states again, so the viewer draws the past run.
 
 Reads:  the MCAP file written by `zensim record`
-Writes: state/joints, state/odom, state/imu, state/sim, state/targets, state/applied of the recording,
+Writes: state/joints, state/odom, state/imu, state/contacts, state/sim, state/targets, state/applied of the recording,
         at their recorded pace times 1/rate (msgpack, as the sim writes them)
 Serves: info/robot, info/urdf and info/mesh/{path} from the recording (the viewer fetches the description there)
 Token:  alive/sim (the viewer fetches a description when a sim appears) and alive/replay

@@ -6,8 +6,9 @@ No network: the physics (zensim.sim.world, a world of one) runs in this process,
 Lockstep recordings hold `state/applied`: every command with the exact sim time it took effect and
 the number of steps it ran. Re-simulation starts from the recorded state at the first command's time
 (a reset state at t = 0 is recreated exactly: same pose, same zeroed solver state), applies each command
-at its time for its steps, and compares joint positions and base pose with the recorded state at the
-end of each. Same machine and build: the divergence is 0.
+at its time for its steps, and compares joint positions, base pose and the feet's normal contact forces
+(state/contacts, where recorded) with the recorded state at the end of each. Same machine and build: the
+divergence is 0.
 
 A recording is untrusted input (any client may publish on the keys a recorder records): a command's
 steps must lie within what a sim accepts (1..MAX_STEPS_PER_REQUEST), states must fit the robot (vector
@@ -36,10 +37,11 @@ import numpy as np
 
 from zensim.common.settings import settings_or_exit
 from zensim.robots import robot_files
-from zensim.schemas import AppliedCommand, Imu, JointState, MotorCommand, Odometry, ResetRequest
+from zensim.schemas import AppliedCommand, Contacts, JointState, MotorCommand, Odometry, ResetRequest
 from zensim.schemas.messages import MAX_STEPS_PER_REQUEST
 from zensim.sim.physics import CommandError, Limits
 from zensim.sim.world import World
+from zensim.sim.world_states import States
 
 from .mcapfile import Recording, read_recording
 from .replay import leading_file_argument
@@ -91,6 +93,8 @@ class Divergence:
     joint_rad: float = 0.0
     base_pos_m: float = 0.0
     base_rot_rad: float = 0.0
+    foot_force_n: float = 0.0
+    """The largest difference of a foot's normal contact force (recordings that hold state/contacts)."""
     compared: int = 0
     commands: int = 0
     sim_time_s: float = 0.0
@@ -98,19 +102,24 @@ class Divergence:
     skipped: int = 0
     notes: list[str] = field(default_factory=list)
 
-    def add(self, world: World, joints: JointState | None, odom: Odometry | None) -> None:
+    def add(self, world: World, joints: JointState | None, odom: Odometry | None,
+            contacts: Contacts | None = None) -> None:
         if joints is None and odom is None:
             return
         self.compared += 1
-        mine, mine_odom, _imu = read_states(world)
+        now = read_states(world)
+        mine, mine_odom = now.joints, now.odom
         if joints is not None:
             self.joint_rad = max(self.joint_rad, float(np.max(np.abs(np.subtract(mine.q, joints.q)))))
         if odom is not None:
             self.base_pos_m = max(self.base_pos_m, float(np.max(np.abs(np.subtract(mine_odom.pos, odom.pos)))))
             self.base_rot_rad = max(self.base_rot_rad, rotation_between(mine_odom.quat_wxyz, odom.quat_wxyz))
+        if contacts is not None and len(contacts.normal_force_n) == len(now.contacts.normal_force_n) > 0:
+            self.foot_force_n = max(self.foot_force_n, float(np.max(np.abs(np.subtract(
+                now.contacts.normal_force_n, contacts.normal_force_n)))))
 
 
-def read_states(world: World) -> tuple[JointState, Odometry, Imu]:
+def read_states(world: World) -> States:
     """The robot's states now, read as the sim reads them (the world's one state reader)."""
     return world.reader.read(world.data, [0])[0]
 
@@ -138,6 +147,8 @@ def fits(n_joints: int, message: object) -> bool:
     elif isinstance(message, Odometry):
         vectors = (message.pos, message.quat_wxyz, message.lin_vel_world, message.ang_vel_body)
         lengths = (3, 4, 3, 3)
+    elif isinstance(message, Contacts):
+        vectors, lengths = (message.normal_force_n,), (len(message.links),)
     else:
         return False
     return math.isfinite(message.sim_time_s) and all(
@@ -151,9 +162,10 @@ class StateIndex:
     def __init__(self, recording: Recording, n_joints: int) -> None:
         self.joints = {_instant(m.sim_time_s): m for m in recording.of("state/joints") if fits(n_joints, m)}
         self.odom = {_instant(m.sim_time_s): m for m in recording.of("state/odom") if fits(n_joints, m)}
+        self.contacts = {_instant(m.sim_time_s): m for m in recording.of("state/contacts") if fits(n_joints, m)}
 
-    def at(self, t: float) -> tuple[JointState | None, Odometry | None]:
-        return self.joints.get(_instant(t)), self.odom.get(_instant(t))
+    def at(self, t: float) -> tuple[JointState | None, Odometry | None, Contacts | None]:
+        return self.joints.get(_instant(t)), self.odom.get(_instant(t)), self.contacts.get(_instant(t))
 
 
 def place(world: World, joints: JointState, odom: Odometry) -> bool:
@@ -165,7 +177,8 @@ def place(world: World, joints: JointState, odom: Odometry) -> bool:
     """
     (sim,) = world.robots
     sim.reset(ResetRequest(q=tuple(joints.q), base_height_m=odom.pos[2]))
-    mine, mine_odom, _imu = read_states(world)
+    now = read_states(world)
+    mine, mine_odom = now.joints, now.odom
     if joints.sim_time_s == 0.0 and list(mine.q) == list(joints.q) \
             and list(mine_odom.pos) == list(odom.pos) and list(mine_odom.quat_wxyz) == list(odom.quat_wxyz):
         return True
@@ -199,7 +212,7 @@ def resim_lockstep(world: World, recording: Recording, applied: list[AppliedComm
             continue
         if not synced or abs(sim.sim_time_s - command.sim_time_s) >= TIME_MATCH_S:
             # The start, or the recording's sim was reset (or stepped by hand) since the last command.
-            joints, odom = states.at(command.sim_time_s)
+            joints, odom, _contacts = states.at(command.sim_time_s)
             if joints is not None and odom is not None:
                 result.exact_start = place(world, joints, odom) and result.exact_start
             elif command.sim_time_s == 0.0:
@@ -232,6 +245,7 @@ def resim_realtime(world: World, recording: Recording, budget: Budget) -> Diverg
     timeline: list[tuple[float, object]] = []
     last_t: float | None = None
     pending_odom: dict[float, Odometry] = {}
+    pending_contacts: dict[float, Contacts] = {}
     n_joints = sim.robot.nu
     for item in recording.messages:
         if item.relative_key == "state/joints" and fits(n_joints, item.message):
@@ -239,6 +253,8 @@ def resim_realtime(world: World, recording: Recording, budget: Budget) -> Diverg
             timeline.append((last_t, item.message))
         elif item.relative_key == "state/odom" and fits(n_joints, item.message):
             pending_odom[item.message.sim_time_s] = item.message
+        elif item.relative_key == "state/contacts" and fits(n_joints, item.message):
+            pending_contacts[item.message.sim_time_s] = item.message
         elif item.relative_key == "cmd/motors" and last_t is not None:
             timeline.append((last_t, item.message))
     states = [(t, m) for t, m in timeline if isinstance(m, JointState) and t in pending_odom]
@@ -269,7 +285,8 @@ def resim_realtime(world: World, recording: Recording, budget: Budget) -> Diverg
         if 0 < n <= MAX_STEPS_PER_REQUEST:
             world.step(n)
             result.sim_time_s = sim.sim_time_s
-            result.add(world, message if isinstance(message, JointState) else None, pending_odom.get(t))
+            result.add(world, message if isinstance(message, JointState) else None, pending_odom.get(t),
+                       pending_contacts.get(t))
     return result
 
 
@@ -352,7 +369,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"resim {settings.file}: {kind} recording of {recording.robot_id} ({sim.robot.name}, {sim.mode}), "
           f"{result.commands} commands, {result.compared} states compared, up to t = {result.sim_time_s:.3f} s")
     print(f"largest divergence: joint position {result.joint_rad:.6g} rad, base position {result.base_pos_m:.6g} m, "
-          f"base orientation {result.base_rot_rad:.6g} rad")
+          f"base orientation {result.base_rot_rad:.6g} rad, foot normal force {result.foot_force_n:.6g} N")
     if kind == "lockstep":
         if result.exact_start:
             print("lockstep: every command re-applied at its recorded sim time from a reset state; on the same "

@@ -2,7 +2,7 @@
 
 Reads:   cmd/motors (MotorCommand, latest wins at each physics step; under the lockstep clock of a robot
          alone every command advances, in arrival order)
-Writes:  state/joints, state/odom, state/imu (state_rate_hz, sim time), state/sim (SimStatus,
+Writes:  state/joints, state/odom, state/imu, state/contacts (state_rate_hz, sim time), state/sim (SimStatus,
          status_rate_hz, wall time), state/applied (AppliedCommand, lockstep alone: one per advance)
 Serves:  ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode, ctl/push, ctl/band (-> CtlReply), ctl/advance (lockstep alone:
          MotorCommand -> AdvanceReply), info/robot, info/urdf, info/mesh/{path} (common/description.py)
@@ -138,6 +138,7 @@ class RobotEndpoint:
         self.pub_joints = TypedPublisher.of(session, keys, topics.JOINTS)
         self.pub_odom = TypedPublisher.of(session, keys, topics.ODOM)
         self.pub_imu = TypedPublisher.of(session, keys, topics.IMU)
+        self.pub_contacts = TypedPublisher.of(session, keys, topics.CONTACTS)
         self.pub_status = TypedPublisher.of(session, keys, topics.SIM_STATUS)
         self.pub_applied = TypedPublisher(session, keys.applied, AppliedCommand) if advances else None
         self.commands = session.declare_subscriber(keys.motors, zenoh.handlers.RingChannel(COMMAND_RING))
@@ -167,10 +168,10 @@ class RobotEndpoint:
     # --- the engine's side (RobotPort) ------------------------------------------------------------
 
     def put_states(self, states: States) -> None:
-        joints, odom, imu = states
-        self.pub_joints.put(joints)
-        self.pub_odom.put(odom)
-        self.pub_imu.put(imu)
+        self.pub_joints.put(states.joints)
+        self.pub_odom.put(states.odom)
+        self.pub_imu.put(states.imu)
+        self.pub_contacts.put(states.contacts)
 
     def publish_status(self, rtf: float, fallen: bool, jitter_p99_s: float, waiting: bool) -> None:
         """(physics lock held) SimStatus: the robot's figures, with the engine's rate, fall, jitter and wait."""
@@ -413,8 +414,9 @@ class RobotEndpoint:
             return Advanced(self._advance_reply(False, bounded(f"the physics broke ({broken[0][1]}): reset")))
         states = engine.read_states()
         self.take_snapshot()
-        joints, odom, imu = states[self.index]
-        reply = AdvanceReply(ok=True, sim_time_s=sim.sim_time_s, steps=sim.steps, joints=joints, odom=odom, imu=imu)
+        mine = states[self.index]
+        reply = AdvanceReply(ok=True, sim_time_s=sim.sim_time_s, steps=sim.steps, joints=mine.joints, odom=mine.odom,
+                             imu=mine.imu, contacts=mine.contacts)
         return Advanced(reply, applied, states)
 
     def _advance_reply(self, ok: bool, error: str | None = None) -> AdvanceReply:
@@ -451,7 +453,8 @@ class RobotEndpoint:
         for queryable in self._queryables:
             queryable.undeclare()
         self.description.undeclare()
-        publishers: list[TypedPublisher] = [self.pub_joints, self.pub_odom, self.pub_imu, self.pub_status]
+        publishers: list[TypedPublisher] = [self.pub_joints, self.pub_odom, self.pub_imu, self.pub_contacts,
+                                            self.pub_status]
         for publisher in publishers + ([self.pub_applied] if self.pub_applied else []):
             publisher.undeclare()
         self.requests.close("the sim is shutting down")  # no client hangs on a closing sim

@@ -29,7 +29,7 @@ class SimSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fiel
     rtf: Annotated[float, msgspec.Meta(ge=0, le=1000)] = 1.0
     """Target real-time factor; 0 runs as fast as possible."""
     state_rate_hz: Annotated[float, msgspec.Meta(ge=1, le=10_000)] = 100.0
-    """Rate of state/joints, state/odom and state/imu in sim time, Hz (at most the physics rate)."""
+    """Rate of state/joints, state/odom, state/imu and state/contacts in sim time, Hz (at most the physics rate)."""
     state_clock: Literal["sim", "wall"] = "sim"
     """Clock of state_rate_hz: sim (one state per 1/rate of sim time) or wall (per 1/rate of wall time)."""
     status_rate_hz: Annotated[float, msgspec.Meta(ge=0.1, le=1000)] = 10.0

@@ -207,8 +207,8 @@ class WorldEndpoint:
         states = engine.read_states()  # published once the client has its reply
         world = engine.world
         return WorldAdvanceReply(ok=True, sim_time_s=world.sim_time_s, steps=world.steps,
-                                 states={robot: RobotStates(joints=j, odom=o, imu=i)
-                                         for robot, (j, o, i) in zip(world.sims, states)
+                                 states={robot: RobotStates(joints=j, odom=o, imu=i, contacts=c)
+                                         for robot, (j, o, i, c) in zip(world.sims, states)
                                          if only is None or robot == only}), states
 
     def _advance_refusal(self, error: str) -> WorldAdvanceReply:

@@ -18,19 +18,27 @@ import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
 
 from zensim.common.logs import RateLimitedLog
-from zensim.schemas import Imu, JointState, Odometry
+from zensim.robots.builder import FOOT_NET_SUFFIX, FOOT_POINTS_SUFFIX
+from zensim.schemas import Contacts, Imu, JointState, Odometry
 
 from .physics import Simulation
 
 logger = logging.getLogger("zensim.sim")
 
-States = tuple[JointState, Odometry, Imu]
-"""One robot's messages of one instant."""
+
+class States(NamedTuple):
+    """One robot's messages of one instant."""
+
+    joints: JointState
+    odom: Odometry
+    imu: Imu
+    contacts: Contacts
 
 MAX_BACKLOG = 10
 """Frames that may wait for the publisher thread (100 ms of states at 100 Hz); past it the oldest is
@@ -52,6 +60,10 @@ class Frame:
     tau: np.ndarray
     sensors: dict[str, np.ndarray]
     """Each sensor of StateReader.SENSORS, one row per robot."""
+    feet_net: np.ndarray
+    """Every robot's feet, in turn: contacts found and the net force the foot exerts (world), one row per foot."""
+    feet_normal_n: np.ndarray
+    """Every robot's feet, in turn: the sum of the foot's contact points' normal forces, N."""
 
     def tilts_rad(self) -> np.ndarray:
         """Each robot's base tilt from upright, rad (as mjdata.base_tilt_rad, for all robots at once)."""
@@ -62,8 +74,8 @@ class Frame:
 
 
 class StateReader:
-    """Reads every robot's JointState, Odometry and Imu of one instant from the world's MjData in a few array
-    operations (one gather per field for all robots, then list slices), not three per robot.
+    """Reads every robot's JointState, Odometry, Imu and Contacts of one instant from the world's MjData in a few
+    array operations (one gather per field for all robots, then list slices), not four per robot.
 
     The one state reader: the sim (a robot alone is a world of one), world/advance and `zensim resim` all
     read states here. The body-frame angular velocity is the world one turned by the base's inverse
@@ -79,12 +91,21 @@ class StateReader:
         self.spans = list(zip([0, *ends[:-1].tolist()], ends.tolist()))
         self.sensors = {name: np.stack([np.arange(r.sensor_slices[name].start, r.sensor_slices[name].stop)
                                         for r in robots]) for name in self.SENSORS}
+        # The feet: robots have any number (an arm none), so one row per foot of every robot, and each robot's span.
+        feet = [(r, link) for r in robots for link in r.foot_links]
+        self.foot_links = [r.foot_links for r in robots]
+        feet_ends = np.cumsum([len(r.foot_links) for r in robots])
+        self.foot_spans = list(zip([0, *feet_ends[:-1].tolist()], feet_ends.tolist()))
+        self.feet_net = _rows([r.sensor_slices[link + FOOT_NET_SUFFIX] for r, link in feet], 4)
+        # Of each contact point's force (normal, tangent, tangent in its contact frame) only the normal is summed.
+        self.feet_normals = _rows([r.sensor_slices[link + FOOT_POINTS_SUFFIX] for r, link in feet], None)[:, ::3]
 
     def take(self, data: mujoco.MjData, seqs: Sequence[int]) -> Frame:
         """(physics lock held) This instant's figures; fancy indexing copies, so the frame outlives the step."""
         sensordata = data.sensordata
         return Frame(float(data.time), tuple(seqs), data.qpos[self.qpos], data.qvel[self.dof],
-                     data.qfrc_actuator[self.dof], {name: sensordata[idx] for name, idx in self.sensors.items()})
+                     data.qfrc_actuator[self.dof], {name: sensordata[idx] for name, idx in self.sensors.items()},
+                     sensordata[self.feet_net], sensordata[self.feet_normals].sum(axis=1))
 
     def messages(self, frame: Frame) -> list[States]:
         """Each robot's messages of a frame, in the order of the sims given (any thread)."""
@@ -93,14 +114,29 @@ class StateReader:
         ang_body = _rotate_by_inverse(s["base_quat"], s["base_angvel"])
         pos, quat, lin, ang = s["base_pos"].tolist(), s["base_quat"].tolist(), s["base_linvel"].tolist(), ang_body.tolist()
         imu_quat, gyro, accel = s["imu_quat"].tolist(), s["imu_gyro"].tolist(), s["imu_accel"].tolist()
-        return [(JointState(sim_time_s=t, seq=seq, q=q[a:b], dq=dq[a:b], tau=tau[a:b]),
-                 Odometry(sim_time_s=t, seq=seq, pos=pos[i], quat_wxyz=quat[i], lin_vel_world=lin[i], ang_vel_body=ang[i]),
-                 Imu(sim_time_s=t, seq=seq, quat_wxyz=imu_quat[i], gyro=gyro[i], accel=accel[i]))
-                for i, ((a, b), seq) in enumerate(zip(self.spans, frame.seqs))]
+        # The sensor gives the force the foot exerts on what it touches: the force ON the foot is its opposite.
+        found = frame.feet_net[:, 0]
+        points, touching = found.astype(int).tolist(), (found > 0).tolist()
+        force, normal = (-frame.feet_net[:, 1:]).tolist(), frame.feet_normal_n.tolist()
+        return [States(JointState(sim_time_s=t, seq=seq, q=q[a:b], dq=dq[a:b], tau=tau[a:b]),
+                       Odometry(sim_time_s=t, seq=seq, pos=pos[i], quat_wxyz=quat[i], lin_vel_world=lin[i],
+                                ang_vel_body=ang[i]),
+                       Imu(sim_time_s=t, seq=seq, quat_wxyz=imu_quat[i], gyro=gyro[i], accel=accel[i]),
+                       Contacts(sim_time_s=t, seq=seq, links=links, in_contact=tuple(touching[f:g]),
+                                normal_force_n=normal[f:g], force_world=tuple(force[f:g]), points=tuple(points[f:g])))
+                for i, ((a, b), (f, g), links, seq) in enumerate(zip(self.spans, self.foot_spans, self.foot_links,
+                                                                    frame.seqs))]
 
     def read(self, data: mujoco.MjData, seqs: Sequence[int]) -> list[States]:
         """(physics lock held) take and messages in one go."""
         return self.messages(self.take(data, seqs))
+
+
+def _rows(slices: list[slice], width: int | None) -> np.ndarray:
+    """The sensordata indices of `slices` as one row each (all of `width`, or all of one width); (0, w) when none."""
+    if not slices:
+        return np.zeros((0, width or 3), int)
+    return np.stack([np.arange(part.start, part.stop) for part in slices])
 
 
 def _rotate_by_inverse(quat_wxyz: np.ndarray, vec: np.ndarray) -> np.ndarray:

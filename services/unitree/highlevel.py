@@ -11,20 +11,23 @@ walking controller answers, sport requests get 3203 (not implemented) and a boun
 SportModeState_ (rt/odommodestate, 50 Hz of sim time; rt/lf/odommodestate, 10 Hz) is the sim's ground
 truth from state/odom (the newest, pulled at that rate) and state/imu: position (world, m), body height, velocity (world, m/s), yaw speed
 (body, rad/s), the IMU, `mode` 0 passive/zero torque/damp, 1 standing (ramps, balancing in place), 3
-walking (a velocity in force and the feet stepping), `stamp` the sim time.
+walking (a velocity in force and the feet stepping), `stamp` the sim time. `foot_force` is the sim's
+state/contacts (the newest): each foot's summed contact normal force in N, rounded and held within int16,
+the robot's feet in their order (the G1: [0] left, [1] right; [2] and [3], a quadruped's hind feet, stay 0).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
 from zensim.common.wire import TypedPublisher, decode_input, error_text, read_payload
-from zensim.schemas import (ArmCommand, Codec, DecodeError, Imu, JointState, Keys, LocoRequest, LocoStatus, Odometry,
-                            VelocityCommand, bounded, topics)
+from zensim.schemas import (ArmCommand, Codec, Contacts, DecodeError, Imu, JointState, Keys, LocoRequest, LocoStatus,
+                            Odometry, VelocityCommand, bounded, topics)
 from zensim.schemas.bounds import MIN_CAP_BYTES
 from zensim.schemas.messages import MAX_VELOCITY, MAX_VELOCITY_TIMEOUT_S
 
@@ -46,6 +49,18 @@ ARM_SDK_WEIGHT_SLOT = 29
 """kNotUsedJoint: its q is the arm_sdk weight."""
 WALKER_TIMEOUT_S = 1.0
 """Longest a sport request waits for the walking controller's answer on ctl/loco."""
+FOOT_FORCE_SLOTS = 4
+"""SportModeState_.foot_force (unitree_go's layout, a quadruped's four feet)."""
+INT16_MAX = 32767
+
+
+def foot_force(contacts: Contacts | None) -> list[int]:
+    """SportModeState_.foot_force from the sim's contacts: each foot's normal force, N, rounded, within int16,
+    the feet in the robot's order; zeros without contacts (none seen yet, or a robot without feet). A state is
+    anyone's to publish: a value that is no force (NaN, negative) reads 0, one beyond int16 its largest."""
+    forces = [] if contacts is None else list(contacts.normal_force_n[:FOOT_FORCE_SLOTS])
+    return ([min(INT16_MAX, round(force)) if force > 0 and math.isfinite(force) else 0 for force in forces]
+            + [0] * (FOOT_FORCE_SLOTS - len(forces)))
 
 
 def _clip(value: float, limit: float) -> float:
@@ -179,6 +194,10 @@ class HighLevel:
         # The newest odometry only, pulled at SportModeState_'s rate from the state ticks: a Python
         # callback per 500 Hz sample would take the GIL from the DDS thread 500 times a second.
         self._odom = session.declare_subscriber(keys.odom, zenoh.handlers.RingChannel(1))
+        # The feet's contacts the same way (foot_force); the newest decoded one is kept between odometries.
+        self._contacts_codec = Codec(Contacts)
+        self._contacts_sub = session.declare_subscriber(keys.contacts, zenoh.handlers.RingChannel(1))
+        self._contacts: Contacts | None = None
 
     def adopt(self, joint_names: tuple[str, ...], cap_bytes: int) -> None:
         """A (new) robot: rt/arm_sdk's motors 12..28 are its joints 12..28 (a robot with fewer has no arm_sdk).
@@ -217,6 +236,12 @@ class HighLevel:
             return None
         self._next_odom_s = now_s + ODOM_PERIOD_S
         self._odom_count += 1
+        contacts = self._contacts_sub.try_recv()
+        if contacts is not None:
+            try:
+                self._contacts = decode_input(contacts, self._contacts_codec, self._cap_bytes)
+            except DecodeError as exc:
+                self._log.warning("ignoring bad Contacts: %s", exc)
         return self._sport_mode_state(odom, imu), self._odom_count % ODOM_LF_EVERY == 0
 
     def _sport_mode_state(self, odom: Odometry, imu: Imu) -> SportModeState_:
@@ -230,7 +255,7 @@ class HighLevel:
             stamp=TimeSpec_(sec=seconds, nanosec=int((odom.sim_time_s - seconds) * 1e9)),
             imu_state=imu_state, mode=mode, gait_type=1 if moving else 0,
             position=list(odom.pos), body_height=float(odom.pos[2]), velocity=list(odom.lin_vel_world),
-            yaw_speed=float(odom.ang_vel_body[2]),
+            yaw_speed=float(odom.ang_vel_body[2]), foot_force=foot_force(self._contacts),
         )
 
     # --- DDS (the adapter's DDS thread) --------------------------------------------------
@@ -343,4 +368,5 @@ class HighLevel:
 
     def close(self) -> None:
         self._odom.undeclare()
+        self._contacts_sub.undeclare()
         self.walker.close()
