@@ -1,11 +1,14 @@
 """How fast a key on the viewer page reaches the walking controller: key press -> first `cmd/velocity`
-put -> first `state/loco` carrying the new command.
+put -> first `state/loco` carrying the new command -> (a press from standing) the first `state/loco` that
+says the feet step.
 
 Runs a router, the sim (real-time clock, floating), `zensim loco` and the viz as real processes on
 loopback, opens the page in headless chromium, presses Stand, then presses and releases W `--presses`
 times (held `--hold-s` each) through chromium's own input pipeline (DevTools Input.dispatchKeyEvent).
 A plain zenoh subscriber in this process stamps the first cmd/velocity sample with the new vx and the
-first state/loco whose `commanded` vx is the new one; press and release both count.
+first state/loco whose `commanded` vx is the new one; press and release both count. Each press starts
+from a robot standing with its feet planted (after a release the controller settles 1 s, then plants the
+feet over 0.3 s: walking.toml), and its `stepping` figure is the first state/loco with `stepping` true.
 
     .venv/bin/python benchmarks/viz_drive_latency.py [--presses 20] [--hold-s 1.0]
 
@@ -77,6 +80,8 @@ def main() -> int:
                 newest["status"] = message
                 if "cmd" in events and "loco" not in events and message.commanded[0] == expected["vx"]:
                     events["loco"] = now
+                if "cmd" in events and "step" not in events and expected["vx"] and message.stepping:
+                    events["step"] = now
 
             subs = [session.declare_subscriber(keys.velocity, on_velocity),
                     session.declare_subscriber(keys.loco_status, on_loco)]
@@ -87,11 +92,14 @@ def main() -> int:
             to_cmd: list[float] = []
             to_loco: list[float] = []
             cmd_to_loco: list[float] = []
+            to_stepping: list[float] = []
             c0, l0, v0, t0 = cpu_s(sim.pid), cpu_s(loco.pid), cpu_s(viz.pid), time.monotonic()
             for i in range(2 * args.presses):
                 down = i % 2 == 0
                 expected["vx"] = 0.5 if down else 0.0
                 time.sleep(args.hold_s if not down else 0.5)  # let the previous status settle
+                if down:  # from standing still: the feet planted again after the last release
+                    wait_for(lambda: not newest["status"].stepping, 20, "the feet planted", interval_s=0.01)
                 events.clear()
                 pressed = time.perf_counter()
                 browser.key("w", down=down)
@@ -99,12 +107,16 @@ def main() -> int:
                 to_cmd.append(1000 * (events["cmd"] - pressed))
                 to_loco.append(1000 * (events["loco"] - pressed))
                 cmd_to_loco.append(1000 * (events["loco"] - events["cmd"]))
+                if down:
+                    wait_for(lambda: "step" in events, 10, "the feet stepping", interval_s=0.001)
+                    to_stepping.append(1000 * (events["step"] - pressed))
             elapsed = time.monotonic() - t0
             for sub in subs:
                 sub.undeclare()
             results["key_to_cmd_velocity"] = summary(to_cmd)
             results["key_to_state_loco"] = summary(to_loco)
             results["cmd_velocity_to_state_loco"] = summary(cmd_to_loco)
+            results["key_to_stepping"] = summary(to_stepping)
             results["cpu_pct"] = {name: round(100 * (cpu_s(p.pid) - c) / elapsed, 1)
                                   for name, p, c in (("sim", sim, c0), ("loco", loco, l0), ("viz", viz, v0))}
     finally:
