@@ -16,6 +16,8 @@ from .messages import (
     BandState,
     PushRequest,
     PushState,
+    Randomize,
+    Variant,
     BridgeReport,
     Contacts,
     CtlReply,
@@ -61,5 +63,5 @@ __all__ = [
     "UnitreeStatus",
     "AdvanceReply", "AppliedCommand", "Ros1Status", "Ros2Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
     "WorldInfo", "WorldRobot", "VelocityCommand", "ArmCommand", "LocoRequest", "LocoStatus", "RemoteState",
-    "BandRequest", "BandState", "PushRequest", "PushState",
+    "BandRequest", "BandState", "PushRequest", "PushState", "Randomize", "Variant",
 ]

@@ -214,6 +214,8 @@ class SimStatus(Message, frozen=True, tag="sim_status", kw_only=True):
     """The most recent push accepted (acting or finished), null before the first."""
     band: BandState | None = None
     """The elastic band (ctl/band) while it holds the robot; null while it is off."""
+    variant: Variant | None = None
+    """The variant of the robot drawn at the last reset (ctl/reset `randomize`); null: the nominal robot."""
 
 
 # --- commands -------------------------------------------------------------
@@ -307,6 +309,9 @@ class ResetRequest(Message, frozen=True, tag="reset_request", kw_only=True, forb
     """Base height, m; default: the mode's spawn height."""
     mode: Mode | None = None
     """Switch to this mode while resetting; default: keep the current mode."""
+    randomize: Randomize | None = None
+    """Draw a variant of the robot (friction, link masses and centres of mass, motor strength) from the
+    nominal one; null: the nominal robot (services/sim/README.md, *Randomisation*)."""
 
     def __post_init__(self) -> None:
         _check_unique("names", self.names)
@@ -317,6 +322,92 @@ class ResetRequest(Message, frozen=True, tag="reset_request", kw_only=True, forb
         _check_finite("q", self.q)
         if self.base_height_m is not None:
             _check_finite("base_height_m", (self.base_height_m,))
+
+
+# --- randomisation at reset: ctl/reset's `randomize` (services/sim/variants.py) ----------------------
+
+MAX_SEED: Final = (1 << 63) - 1
+"""Largest seed: any non-negative signed 64-bit integer (what msgspec bounds and every JSON library carry)."""
+FRICTION_SCALE_BOUNDS: Final = (0.1, 10.0)
+"""Friction factors a range may reach: ice to glue, nothing a typo like 1e6 makes."""
+MASS_SCALE_BOUNDS: Final = (0.2, 5.0)
+"""Mass factors a range may reach (each link's mass and inertia together)."""
+MOTOR_STRENGTH_BOUNDS: Final = (0.1, 2.0)
+"""Motor strength factors a range may reach (torque and torque limit together; 0 is a limp motor, a fault)."""
+MAX_COM_OFFSET_M: Final = 0.1
+"""Largest centre-of-mass offset along each axis of a link, m."""
+
+
+def _check_scale_range(field: str, value: tuple[float, float] | None, bounds: tuple[float, float]) -> None:
+    if value is None:
+        return
+    _check_finite(field, value)
+    lo, hi = value
+    if lo > hi:
+        raise ValueError(f"`{field}` [{lo:g}, {hi:g}]: lo is above hi")
+    if lo < bounds[0] or hi > bounds[1]:
+        raise ValueError(f"`{field}` [{lo:g}, {hi:g}] must lie within [{bounds[0]:g}, {bounds[1]:g}]")
+
+
+class Randomize(Message, frozen=True, tag="randomize", kw_only=True, forbid_unknown_fields=True):
+    """A variant of the robot drawn at reset (ResetRequest.randomize): each factor uniform in its range, by seed.
+
+    Factors scale the robot's nominal values (always from the nominal robot, never compounding); a range
+    left out keeps that part nominal. The same seed and ranges give the same variant on every machine.
+    """
+
+    seed: Annotated[int, msgspec.Meta(ge=0, le=MAX_SEED)]
+    """Seed of the draw, 0..2^63-1."""
+    friction: tuple[float, float] | None = None
+    """[lo, hi] factor on the sliding friction of the robot's contacts with the ground (one factor per
+    robot), within [0.1, 10]."""
+    mass: tuple[float, float] | None = None
+    """[lo, hi] factor on each link's mass and rotational inertia (one factor per link), within [0.2, 5]."""
+    com_offset_m: float | None = None
+    """Each link's centre of mass moves by a uniform offset in [-com_offset_m, com_offset_m] along each axis
+    of the link's frame, m, in [0, 0.1]."""
+    motor_strength: tuple[float, float] | None = None
+    """[lo, hi] factor on each motor's torque (the PD's output and the feed-forward) and its torque limit
+    (one factor per joint), within [0.1, 2]."""
+
+    def __post_init__(self) -> None:
+        _check_scale_range("friction", self.friction, FRICTION_SCALE_BOUNDS)
+        _check_scale_range("mass", self.mass, MASS_SCALE_BOUNDS)
+        _check_scale_range("motor_strength", self.motor_strength, MOTOR_STRENGTH_BOUNDS)
+        if self.com_offset_m is not None:
+            _check_finite("com_offset_m", (self.com_offset_m,))
+            if not 0.0 <= self.com_offset_m <= MAX_COM_OFFSET_M:
+                raise ValueError(f"`com_offset_m` must be in [0, {MAX_COM_OFFSET_M:g}] m, got {self.com_offset_m}")
+
+
+class Variant(Message, frozen=True, tag="variant", kw_only=True):
+    """The variant of the robot in use since the last reset (CtlReply, SimStatus and RobotInfo `variant`)."""
+
+    seed: int
+    """The seed it was drawn with."""
+    friction_range: tuple[float, float] | None = None
+    """The request's `friction` range (null: nominal friction); with the other ranges and the seed, what
+    draws this variant again (a plain struct, not the request: readers skip fields it gains later)."""
+    mass_range: tuple[float, float] | None = None
+    """The request's `mass` range (null: nominal masses and inertias)."""
+    com_offset_max_m: float | None = None
+    """The request's `com_offset_m` (null: nominal centres of mass)."""
+    motor_strength_range: tuple[float, float] | None = None
+    """The request's `motor_strength` range (null: nominal motors)."""
+    friction_scale: float = 1.0
+    """Factor on the sliding friction of the robot's contacts with the ground."""
+    bodies: tuple[str, ...] = ()
+    """The robot's links (URDF names) that `mass_scale` and `com_offset_m` follow."""
+    mass_scale: Vector = ()
+    """Factor on each link's mass and inertia, in `bodies` order."""
+    com_offset_m: tuple[tuple[float, float, float], ...] = ()
+    """Each link's centre-of-mass offset in its own frame, m, in `bodies` order."""
+    motor_strength: Vector = ()
+    """Factor on each motor's torque and torque limit, canonical joint order."""
+    mass_kg: float = 0.0
+    """The variant's total mass, kg."""
+    nominal_mass_kg: float = 0.0
+    """The nominal robot's total mass, kg."""
 
 
 class PauseRequest(Message, frozen=True, tag="pause_request", kw_only=True, forbid_unknown_fields=True):
@@ -366,6 +457,8 @@ class CtlReply(Message, frozen=True, tag="ctl_reply", kw_only=True):
     """ctl/push: the push that was applied (its force, start and whole-step duration)."""
     band: BandState | None = None
     """ctl/band: the band after the request (its `on` false when it is off)."""
+    variant: Variant | None = None
+    """ctl/reset: the variant of the robot the reset drew (`randomize`); null: the nominal robot."""
 
 
 # --- disturbances: ctl/push, ctl/band (services/sim/disturbances.py) ----------
@@ -544,6 +637,8 @@ class RobotInfo(Message, frozen=True, tag="robot_info", kw_only=True):
     here knows from the first SimStatus whether the sim reset meanwhile."""
     terrain: Terrain | None = None
     """The ground the robot stands on (`zensim sim --terrain`, a world file's `[terrain]`); null: the flat floor."""
+    variant: Variant | None = None
+    """The variant of the robot drawn at the last reset (ctl/reset `randomize`); null: the nominal robot."""
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)

@@ -266,7 +266,7 @@ class Engine:
         sim.last_reset_reason = bounded(f"the physics broke: {reason}")
         self._reset_log.log(logging.ERROR, "%s: %s: resetting to the default pose", self._name(index),
                             sim.last_reset_reason)
-        self.reset_robot(index, ResetRequest())
+        self.reset_robot(index, ResetRequest(randomize=sim.variants.request))  # the same variant: the same run
 
     def _check_falls(self, fallen: list[bool]) -> None:
         """With auto_reset_on_fall: reset each robot whose fall lasted fall_reset_delay_s of sim time."""
@@ -281,7 +281,7 @@ class Engine:
             elif now - sim.fallen_since >= self.settings.fall_reset_delay_s:
                 self._reset_log.warning("%s fell: resetting (auto_reset_on_fall)", self._name(index))
                 sim.last_reset_reason = "fallen (auto_reset_on_fall)"
-                self.reset_robot(index, ResetRequest())
+                self.reset_robot(index, ResetRequest(randomize=sim.variants.request))  # the same variant again
 
     # --- inside ---------------------------------------------------------------------------------
 

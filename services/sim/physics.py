@@ -42,6 +42,7 @@ from zensim.schemas.messages import Terrain
 
 from .disturbances import Disturbances
 from .mjdata import actuator_index, actuator_values, base_tilt_rad, reset, write_actuators
+from .variants import Variants
 
 logger = logging.getLogger(__name__)
 
@@ -175,6 +176,8 @@ class Simulation:
         self.data = data
         self.robot = robot
         self.disturbances.attach(robot, data)  # a rebuild: the pushes end, the band keeps its setting
+        self.variants = Variants(robot, self.disturbances.bodies)
+        """The variant of the robot drawn at reset (ctl/reset `randomize`): a new model starts nominal."""
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self._actuators = actuator_index(robot)
@@ -224,6 +227,7 @@ class Simulation:
         """
         request = request or ResetRequest()
         q = self.check_reset(request)  # checked before anything changes
+        self.variants.apply(request.randomize)  # the model first: the data's reset runs mj_forward on it
         reset(self.robot, self.data, q, request.base_height_m)
         with self._lock:
             self._targets = MotorTargets.hold(self.robot, q)
@@ -386,7 +390,11 @@ class Simulation:
     # --- stepping --------------------------------------------------------
 
     def _apply(self, targets: MotorTargets) -> None:
-        write_actuators(self.robot, self.data, self._actuators, *targets.actuators)
+        neg_kp, neg_kd, ctrl = targets.actuators
+        strength = self.variants.strength
+        if strength is not None:  # a variant's weaker or stronger motors: the whole torque scales (variants.py)
+            neg_kp, neg_kd, ctrl = neg_kp * strength, neg_kd * strength, ctrl * strength
+        write_actuators(self.robot, self.data, self._actuators, neg_kp, neg_kd, ctrl)
         self._applied = targets
 
     def apply_targets(self, check_watchdog: bool = True) -> None:
@@ -452,6 +460,7 @@ class Simulation:
             mesh_paths=tuple(robot.mesh_files),
             keys=keys.table(),
             terrain=self.terrain,
+            variant=self.variants.variant,
         )
 
 

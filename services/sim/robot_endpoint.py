@@ -207,13 +207,15 @@ class RobotEndpoint:
             pushes_applied=disturbances.pushes_applied,
             last_push=disturbances.last_push,
             band=disturbances.band_state() if disturbances.band_holds() else None,
+            variant=sim.variants.variant,
         ))
 
     def jumped(self, rebuilt: bool) -> None:
         """(physics lock held) A reset (`rebuilt`: in a new model): info/robot says the new episode (and mode)."""
         # One value, replaced whole: a query answered meanwhile gets the old mode with the old
         # episode or the new with the new, never a mix.
-        self.info = self._describe() if rebuilt else msgspec.structs.replace(self.info, episode=self.episode())
+        self.info = self._describe() if rebuilt else msgspec.structs.replace(
+            self.info, episode=self.episode(), variant=self.sim.variants.variant)
 
     def take_snapshot(self) -> None:
         self.snapshot = self._take_snapshot()
@@ -302,8 +304,13 @@ class RobotEndpoint:
             self.engine.reset_robot(self.index, request)
         except CommandError as exc:
             return self._status_reply(ok=False, error=str(exc))
-        self.engine.request_log.info("%s reset (mode %s)", self.keys.robot, self.sim.mode)
-        return self._status_reply()
+        variant = self.sim.variants.variant
+        if variant is None:
+            self.engine.request_log.info("%s reset (mode %s)", self.keys.robot, self.sim.mode)
+        else:
+            self.engine.request_log.info("%s reset (mode %s) as variant %d: %.4g kg (nominal %.4g)", self.keys.robot,
+                                         self.sim.mode, variant.seed, variant.mass_kg, variant.nominal_mass_kg)
+        return msgspec.structs.replace(self._status_reply(), variant=variant)
 
     def _shared_clock(self, verb: str) -> CtlReply | None:
         """The refusal of a verb that would move or stop every robot of a world of several; None: a robot alone."""
