@@ -41,6 +41,7 @@ from zensim.schemas import (
 from zensim.schemas.messages import Terrain
 
 from .disturbances import Disturbances
+from .faults import Faults
 from .mjdata import actuator_index, actuator_values, base_tilt_rad, reset, write_actuators
 
 logger = logging.getLogger(__name__)
@@ -163,6 +164,8 @@ class Simulation:
         """False under the lockstep clock: time stands still between commands, so silence is no fault."""
         self.disturbances = Disturbances(robot, data)
         """Pushes and the elastic band (ctl/push, ctl/band): forces applied before each step."""
+        self.faults = Faults(robot, data)
+        """Motor and sensor faults (ctl/faults): in the actuators' figures and in what the states report."""
         self.attach(robot, data)
         self.reset()
         self.resets = 0
@@ -175,6 +178,7 @@ class Simulation:
         self.data = data
         self.robot = robot
         self.disturbances.attach(robot, data)  # a rebuild: the pushes end, the band keeps its setting
+        self.faults.attach(robot, data)  # a rebuild: the faults stay, written into the new model
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self._actuators = actuator_index(robot)
@@ -233,6 +237,7 @@ class Simulation:
         self.resets += 1
         self.fallen_since = None
         self.disturbances.clear_pushes()  # a new episode: no push of the last one acts on; the band holds on
+        self.faults.relock()  # the faults stay; a locked joint is held in the new pose
         self._apply(self._targets)
         if self.robot.slot is None:  # a robot of a world: mjdata.reset ran its own forward, the others untouched
             mujoco.mj_forward(self.robot.model, self.data)
@@ -386,8 +391,12 @@ class Simulation:
     # --- stepping --------------------------------------------------------
 
     def _apply(self, targets: MotorTargets) -> None:
-        write_actuators(self.robot, self.data, self._actuators, *targets.actuators)
+        write_actuators(self.robot, self.data, self._actuators, *self.faults.scale_actuators(*targets.actuators))
         self._applied = targets
+
+    def faults_changed(self) -> None:
+        """(physics lock held) The motor faults changed: the actuators get the held targets again, through them."""
+        self._apply(self._safe if self._watchdog_on else self._targets)
 
     def apply_targets(self, check_watchdog: bool = True) -> None:
         """Give the actuators the current targets, when they changed since the last step (the world calls it
