@@ -13,8 +13,8 @@ an encoder offset is added to the joint's q; Gaussian noise (drawn from the requ
 state read for publishing) and a constant bias are added to the IMU's gyro and accelerometer, and noise to
 every joint's q and dq. The physics is untouched: a controller sees the fault, the world does not.
 
-Determinism: the noise comes from one PCG64 generator per robot, seeded at `set`, drawn in a fixed order
-(q, dq, gyro, accel) for each state read. Under lockstep, states are read only at advances and resets, so the
+Determinism: the noise comes from one PCG64 generator per robot, seeded at `set`, one draw of 2 x joints + 6
+standard normals (q, dq, gyro, accel) for each state read. Under lockstep, states are read only at advances and resets, so the
 same seed and the same commands give the same states, to the bit.
 
 Everything here is for the thread holding the engine's physics lock (docs/architecture.md, "Threads"), but
@@ -40,17 +40,28 @@ pushed by its own motor at 20 N m: under 1e-5 rad/s, 1e-6 rad in 2 s). Two joint
 (tried first) held the angle but chattered between the stops at up to 0.05 rad/s."""
 
 
+def _sensing(offset: np.ndarray, sensors: SensorFaults | None, rng: np.random.Generator) -> _Sensing:
+    nu = len(offset)
+    if sensors is None:
+        return _Sensing(np.concatenate((offset, np.zeros(nu + 6))), None, rng)
+    bias = np.concatenate((offset, np.zeros(nu), sensors.gyro_bias_rad_s, sensors.accel_bias_m_s2))
+    std = np.repeat([sensors.q_noise_std_rad, sensors.dq_noise_std_rad_s, sensors.gyro_noise_std_rad_s,
+                     sensors.accel_noise_std_m_s2], [nu, nu, 3, 3])
+    return _Sensing(bias, std if std.any() else None, rng)
+
+
 class FaultError(ValueError):
     """A fault request that does not fit the robot (an unknown joint)."""
 
 
 @dataclass(frozen=True)
 class _Sensing:
-    """What `observe` adds to one robot's reported states; replaced whole, never changed."""
+    """What `observe` adds to one robot's reported figures (q, dq, gyro, accel, end to end); replaced whole."""
 
-    offset: np.ndarray | None
-    """Per joint, rad; None: no encoder offset."""
-    sensors: SensorFaults | None
+    bias: np.ndarray
+    """Encoder offsets, then 0 for dq, then the gyro's and the accelerometer's biases."""
+    std: np.ndarray | None
+    """The noise's std, laid out as `bias`; None: no noise."""
     rng: np.random.Generator
 
 
@@ -115,8 +126,8 @@ class Faults:
             self.scale = scale if (scale != 1.0).any() else None
             self._locked = np.array(sorted(locked), int)
             sensors = request.sensors if request.sensors != SensorFaults() else None
-            self._sensing = None if sensors is None and not offset.any() else _Sensing(
-                offset if offset.any() else None, sensors, np.random.Generator(np.random.PCG64(request.seed)))
+            self._sensing = None if sensors is None and not offset.any() else _sensing(
+                offset, sensors, np.random.Generator(np.random.PCG64(request.seed)))
             self.state = FaultsState(joints=request.joints, sensors=sensors, seed=request.seed,
                                      set_at_s=float(self.data.time))
         self.changes += 1
@@ -144,21 +155,16 @@ class Faults:
         sensing = self._sensing
         if sensing is None:
             return
-        if sensing.offset is not None:
-            q += sensing.offset
-        sensors, rng = sensing.sensors, sensing.rng
-        if sensors is None:
-            return
-        if sensors.q_noise_std_rad:
-            q += rng.normal(0.0, sensors.q_noise_std_rad, q.shape)
-        if sensors.dq_noise_std_rad_s:
-            dq += rng.normal(0.0, sensors.dq_noise_std_rad_s, dq.shape)
-        if sensors.gyro_noise_std_rad_s:
-            gyro += rng.normal(0.0, sensors.gyro_noise_std_rad_s, 3)
-        gyro += sensors.gyro_bias_rad_s
-        if sensors.accel_noise_std_m_s2:
-            accel += rng.normal(0.0, sensors.accel_noise_std_m_s2, 3)
-        accel += sensors.accel_bias_m_s2
+        # One array and one draw for all four (numpy's call overhead, not the arithmetic, is the cost here).
+        values = np.concatenate((q, dq, gyro, accel))
+        values += sensing.bias
+        if sensing.std is not None:
+            values += sensing.std * sensing.rng.standard_normal(len(values))
+        nu = len(q)
+        q[:] = values[:nu]
+        dq[:] = values[nu:2 * nu]
+        gyro[:] = values[2 * nu:2 * nu + 3]
+        accel[:] = values[2 * nu + 3:]
 
     def senses(self) -> bool:
         """Whether `observe` changes anything."""
