@@ -14,6 +14,10 @@ from .messages import (
     AppliedCommand,
     BandRequest,
     BandState,
+    FaultsRequest,
+    FaultsState,
+    JointFault,
+    SensorFaults,
     PushRequest,
     PushState,
     Randomize,
@@ -64,4 +68,5 @@ __all__ = [
     "AdvanceReply", "AppliedCommand", "Ros1Status", "Ros2Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
     "WorldInfo", "WorldRobot", "VelocityCommand", "ArmCommand", "LocoRequest", "LocoStatus", "RemoteState",
     "BandRequest", "BandState", "PushRequest", "PushState", "Randomize", "Variant",
+    "FaultsRequest", "FaultsState", "JointFault", "SensorFaults",
 ]

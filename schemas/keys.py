@@ -72,6 +72,7 @@ class Keys:
     ctl_advance: str
     ctl_push: str
     ctl_band: str
+    ctl_faults: str
     applied: str
     world_pause: str
     world_resume: str

@@ -216,6 +216,10 @@ class SimStatus(Message, frozen=True, tag="sim_status", kw_only=True):
     """The elastic band (ctl/band) while it holds the robot; null while it is off."""
     variant: Variant | None = None
     """The variant of the robot drawn at the last reset (ctl/reset `randomize`); null: the nominal robot."""
+    faults: FaultsState | None = None
+    """The faults injected now (ctl/faults); null while none is."""
+    faults_set: int = 0
+    """ctl/faults requests that changed the faults (set or clear), since start."""
 
 
 # --- commands -------------------------------------------------------------
@@ -459,6 +463,8 @@ class CtlReply(Message, frozen=True, tag="ctl_reply", kw_only=True):
     """ctl/band: the band after the request (its `on` false when it is off)."""
     variant: Variant | None = None
     """ctl/reset: the variant of the robot the reset drew (`randomize`); null: the nominal robot."""
+    faults: FaultsState | None = None
+    """ctl/faults: the faults active after the request (null: none)."""
 
 
 # --- disturbances: ctl/push, ctl/band (services/sim/disturbances.py) ----------
@@ -556,6 +562,130 @@ class BandState(Message, frozen=True, tag="band_state", kw_only=True):
     """Damping along the band, N s/m."""
     force_n: Vector = ()
     """The force it put on the base at the last step, world frame, N."""
+
+
+# --- faults: ctl/faults (services/sim/faults.py) ---------------------------------
+
+FAULT_VERBS: Final = ("set", "clear")
+FaultVerb = Literal["set", "clear"]
+MAX_JOINT_FAULTS: Final = 256
+"""Joint faults in one request (more than any robot has joints)."""
+MAX_ENCODER_OFFSET_RAD: Final = math.pi
+"""Largest encoder offset, rad: half a turn (an offset beyond is the same angle the other way)."""
+MAX_GYRO_NOISE_RAD_S: Final = 1.0
+"""Largest gyro noise std and bias, rad/s (a real MEMS gyro's is below 0.01)."""
+MAX_ACCEL_NOISE_M_S2: Final = 10.0
+"""Largest accelerometer noise std and bias, m/s^2 (about 1 g)."""
+MAX_Q_NOISE_RAD: Final = 0.5
+"""Largest joint position noise std, rad."""
+MAX_DQ_NOISE_RAD_S: Final = 10.0
+"""Largest joint velocity noise std, rad/s."""
+MAX_FAULT_SEED: Final = 2**63 - 1
+
+
+def _check_in(field: str, value: float, low: float, high: float) -> None:
+    _check_finite(field, (value,))
+    if not low <= value <= high:
+        raise ValueError(f"`{field}` must be in [{low:g}, {high:g}], got {value:g}")
+
+
+class JointFault(Message, frozen=True, tag="joint_fault", kw_only=True, forbid_unknown_fields=True):
+    """One joint's motor and encoder faults (FaultsRequest.joints, FaultsState.joints)."""
+
+    joint: str
+    """The joint (RobotInfo.joint_names)."""
+    torque_scale: float = 1.0
+    """The motor's torque (its PD and feed-forward, and its peak) times this, in [0, 1]: a weak motor."""
+    locked: bool = False
+    """Held where it is when the fault is set (or the robot reset): a seized gearbox, whatever the load."""
+    limp: bool = False
+    """No motor torque at all (torque_scale 0): the joint swings free."""
+    encoder_offset_rad: float = 0.0
+    """Added to the joint's reported q (state/joints), rad, |offset| <= pi; the physics is untouched."""
+
+    def __post_init__(self) -> None:
+        if not 0 < len(self.joint) <= MAX_BODY_NAME_CHARS:
+            raise ValueError(f"`joint` must be 1..{MAX_BODY_NAME_CHARS} characters")
+        _check_in("torque_scale", self.torque_scale, 0.0, 1.0)
+        _check_in("encoder_offset_rad", self.encoder_offset_rad, -MAX_ENCODER_OFFSET_RAD, MAX_ENCODER_OFFSET_RAD)
+        if self.locked and self.limp:
+            raise ValueError(f"joint {self.joint}: `locked` and `limp` together (a joint is held or free, not both)")
+        if self.limp and self.torque_scale != 1.0:
+            raise ValueError(f"joint {self.joint}: `limp` is torque_scale 0; give one of them")
+
+
+class SensorFaults(Message, frozen=True, tag="sensor_faults", kw_only=True, forbid_unknown_fields=True):
+    """Noise and bias on what the robot's sensors report (state/imu, state/joints); the physics is untouched.
+
+    Noise is Gaussian, drawn afresh for every published state from the request's `seed`.
+    """
+
+    gyro_noise_std_rad_s: float = 0.0
+    """Std of the noise on each axis of Imu.gyro, rad/s, in [0, 1]."""
+    gyro_bias_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Added to Imu.gyro (IMU frame), rad/s, each in [-1, 1]."""
+    accel_noise_std_m_s2: float = 0.0
+    """Std of the noise on each axis of Imu.accel, m/s^2, in [0, 10]."""
+    accel_bias_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Added to Imu.accel (IMU frame), m/s^2, each in [-10, 10]."""
+    q_noise_std_rad: float = 0.0
+    """Std of the noise on every joint's reported q, rad, in [0, 0.5]."""
+    dq_noise_std_rad_s: float = 0.0
+    """Std of the noise on every joint's reported dq, rad/s, in [0, 10]."""
+
+    def __post_init__(self) -> None:
+        _check_in("gyro_noise_std_rad_s", self.gyro_noise_std_rad_s, 0.0, MAX_GYRO_NOISE_RAD_S)
+        _check_in("accel_noise_std_m_s2", self.accel_noise_std_m_s2, 0.0, MAX_ACCEL_NOISE_M_S2)
+        _check_in("q_noise_std_rad", self.q_noise_std_rad, 0.0, MAX_Q_NOISE_RAD)
+        _check_in("dq_noise_std_rad_s", self.dq_noise_std_rad_s, 0.0, MAX_DQ_NOISE_RAD_S)
+        for i, value in enumerate(self.gyro_bias_rad_s):
+            _check_in(f"gyro_bias_rad_s[{i}]", value, -MAX_GYRO_NOISE_RAD_S, MAX_GYRO_NOISE_RAD_S)
+        for i, value in enumerate(self.accel_bias_m_s2):
+            _check_in(f"accel_bias_m_s2[{i}]", value, -MAX_ACCEL_NOISE_M_S2, MAX_ACCEL_NOISE_M_S2)
+
+
+class FaultsRequest(Message, frozen=True, tag="faults_request", kw_only=True, forbid_unknown_fields=True):
+    """Inject faults (ctl/faults): `set` makes the request's faults the robot's whole fault set (any set
+    before is replaced: nothing of it stays), `clear` removes every fault; no verb answers the faults active.
+
+    Checked whole before anything changes: one bad part (an unknown joint, a scale of 2, a NaN) refuses it all.
+    """
+
+    verb: FaultVerb | None = None
+    """set or clear."""
+    joints: tuple[JointFault, ...] = ()
+    """set: the joints' faults, at most one per joint."""
+    sensors: SensorFaults | None = None
+    """set: the sensors' noise and bias; null: exact sensors."""
+    seed: int = 0
+    """set: seeds the sensor noise (the same seed and commands give the same states), in [0, 2^63)."""
+
+    def __post_init__(self) -> None:
+        if self.verb != "set" and (self.joints or self.sensors is not None or self.seed):
+            raise ValueError("`joints`, `sensors` and `seed` go with `verb: set`")
+        if len(self.joints) > MAX_JOINT_FAULTS:
+            raise ValueError(f"at most {MAX_JOINT_FAULTS} joint faults, got {len(self.joints)}")
+        names = [fault.joint for fault in self.joints]
+        if len(set(names)) != len(names):
+            repeated = next(name for name in names if names.count(name) > 1)
+            raise ValueError(f"joint {repeated[:64]!r} has more than one fault entry; give one per joint")
+        if not 0 <= self.seed <= MAX_FAULT_SEED:
+            raise ValueError(f"`seed` must be in [0, 2^63), got {self.seed}")
+
+
+class FaultsState(Message, frozen=True, tag="faults_state", kw_only=True):
+    """The faults a robot has now (SimStatus.faults, CtlReply.faults): what the last `set` asked for."""
+
+    joints: tuple[JointFault, ...] = ()
+    """Each faulty joint's faults."""
+    sensors: SensorFaults | None = None
+    """The sensors' noise and bias; null: exact."""
+    seed: int = 0
+    """The noise's seed."""
+    set_at_s: float = 0.0
+    """Sim time the faults were set, s."""
+    locked_q: Vector = ()
+    """Where each locked joint is held, rad, in the order of `joints`' locked entries."""
 
 
 # --- description -----------------------------------------------------------
@@ -1247,6 +1377,7 @@ WIRE_TYPES: tuple[type[Message], ...] = (
     CtlReply,
     PushRequest,
     BandRequest,
+    FaultsRequest,
     RobotInfo,
     UnitreeStatus,
     AppliedCommand,

@@ -22,6 +22,7 @@ from .messages import (
     AdvanceReply,
     BandRequest,
     PushRequest,
+    FaultsRequest,
     WorldAdvanceReply,
     WorldAdvanceRequest,
     WorldInfo,
@@ -188,6 +189,10 @@ CTL_PUSH: Final = Topic("ctl/push", "queryable", "any client (an operator, a tes
 CTL_BAND: Final = Topic("ctl/band", "queryable", "any client (an operator, a test bench)", "sim", "on demand",
                         BandRequest, CtlReply, note="(the elastic band: on, off, lower, raise, a length; `band` says "
                                                     "its state)", name="ctl_band")
+CTL_FAULTS: Final = Topic("ctl/faults", "queryable", "any client (an operator, a test bench)", "sim", "on demand",
+                          FaultsRequest, CtlReply, note="(faults on demand: weak, locked, limp joints, encoder "
+                                                        "offsets, sensor noise and bias; `faults` says what is active)",
+                          name="ctl_faults")
 WORLD_NOTE: Final = "(a world of several robots, `zensim sim --world`: `{robot}` is the world's id)"
 WORLD_PAUSE: Final = Topic("world/pause", "queryable", "any client", "sim (a world)", "on demand", PauseRequest, CtlReply,
                            note=WORLD_NOTE, name="world_pause")
@@ -244,7 +249,7 @@ ROUTER_ALIVE: Final[Topic[Message]] = Topic("alive", "liveliness", "router (one 
 TOPICS: Final[tuple[Topic, ...]] = (
     JOINTS, ODOM, IMU, CONTACTS, SIM_STATUS, BRIDGE_TARGETS, UNITREE_STATUS, ROS1_STATUS, ROS2_STATUS,
     MOTORS, JOINT_TARGETS, JOINT_TARGET, BRIDGE_REPORT,
-    CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, CTL_PUSH, CTL_BAND, APPLIED,
+    CTL_RESET, CTL_PAUSE, CTL_RESUME, CTL_STEP, CTL_MODE, CTL_ADVANCE, CTL_PUSH, CTL_BAND, CTL_FAULTS, APPLIED,
     WORLD_PAUSE, WORLD_RESUME, WORLD_STEP, WORLD_RESET, WORLD_ADVANCE, WORLD_INFO,
     ROBOT_INFO, URDF, MESH, ALIVE, CLAIM, ROUTER_ALIVE,
     VELOCITY, ARMS, CTL_LOCO, LOCO_STATUS, REMOTE,

@@ -67,7 +67,7 @@ class TestWildcardQueries:
                 sample = reply.ok if reply.ok is not None else None
                 if sample is not None:
                     by_key[str(sample.key_expr)] = sample
-            for verb in ("reset", "pause", "resume", "step", "mode", "push", "band"):
+            for verb in ("reset", "pause", "resume", "step", "mode", "push", "band", "faults"):
                 sample = by_key.get(keys.ctl(verb))
                 assert sample is not None, f"{selector}: ctl/{verb} did not answer on its own key ({list(by_key)})"
                 answer = json.loads(sample.payload.to_bytes())

@@ -96,6 +96,8 @@ SAMPLES["loco_status"] = dict(seq=3, sim_time_s=4.2, active=True, fsm_id=500, wa
 # Disturbances (issue 29 item 2).
 SAMPLES["push_request"] = dict(direction=[1.0, 0.0, 0.0], magnitude_n=80.0, duration_s=0.2, body="pelvis")
 SAMPLES["band_request"] = dict(verb="on", length_m=0.5)
+SAMPLES["faults_request"] = dict(verb="set", joints=[dict(joint="left_knee_joint", torque_scale=0.6, encoder_offset_rad=0.02)],
+                                 sensors=dict(gyro_noise_std_rad_s=0.01, accel_bias_m_s2=[0.1, 0.0, 0.0]), seed=7)
 PUSH_STATE = dict(body="pelvis", force_n=[80.0, 0.0, 0.0], start_s=2.0, duration_s=0.2, remaining_s=0.1,
                   impulse_n_s=[16.0, 0.0, 0.0])
 BAND_STATE = dict(on=True, anchor=[0.0, 0.0, 3.05], length_m=0.0, stiffness_n_m=200.0, damping_n_s_m=100.0,

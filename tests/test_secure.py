@@ -199,10 +199,13 @@ def test_viewer_reads_but_cannot_drive_operator_can(secured: tuple[str, Service,
         push = json.dumps({"direction": [1, 0, 0], "magnitude_n": 50, "duration_s": 0.1})
         assert list(viewer.get(f"{root}/ctl/push", payload=push, timeout=2)) == []
         assert list(viewer.get(f"{root}/ctl/band", payload='{"verb": "on"}', timeout=2)) == []
+        limp = json.dumps({"verb": "set", "joints": [{"joint": name, "limp": True}]})
+        assert list(viewer.get(f"{root}/ctl/faults", payload=limp, timeout=2)) == []
         before = status.value.seq
         seen = status.wait(lambda s: s.seq > before + 5, what="fresh status")
         assert seen.command_age_s is None and seen.rejected_commands == 0 and not seen.paused
         assert seen.pushes_applied == 0 and seen.rejected_requests == 0
+        assert seen.faults is None and seen.faults_set == 0
 
         # Nobody but the sim publishes the sim's keys: a viewer's and another operator's forged status
         # never reach this operator (a session's own puts reach its own subscribers without the router).
@@ -222,9 +225,12 @@ def test_viewer_reads_but_cannot_drive_operator_can(secured: tuple[str, Service,
         status.wait(lambda s: s.command_age_s is not None, what="the operator's command to arrive")
         reply = json.loads(next(iter(operator.get(f"{root}/ctl/push", payload=push, timeout=10))).ok.payload.to_bytes())
         assert reply["ok"] and reply["push"]["body"] == "pelvis", reply
+        reply = json.loads(next(iter(operator.get(f"{root}/ctl/faults", payload=limp, timeout=10))).ok.payload.to_bytes())
+        assert reply["ok"] and reply["faults"]["joints"][0]["limp"] is True, reply
         reply = json.loads(next(iter(operator.get(f"{root}/ctl/pause", payload="{}", timeout=10))).ok.payload.to_bytes())
         assert reply["ok"], reply
-        status.wait(lambda s: s.paused and s.pushes_applied == 1, what="the sim to pause, the push counted")
+        status.wait(lambda s: s.paused and s.pushes_applied == 1 and s.faults_set == 1,
+                    what="the sim to pause, the push and the faults counted")
     assert sim.alive() and router.alive()
     # The router's audit log names who was refused what.
     for what in (f"is unauthorized to Put (ingress) on {root}/cmd/motors",

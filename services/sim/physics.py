@@ -41,6 +41,7 @@ from zensim.schemas import (
 from zensim.schemas.messages import Terrain
 
 from .disturbances import Disturbances
+from .faults import Faults
 from .mjdata import actuator_index, actuator_values, base_tilt_rad, reset, write_actuators
 from .variants import Variants
 
@@ -164,6 +165,8 @@ class Simulation:
         """False under the lockstep clock: time stands still between commands, so silence is no fault."""
         self.disturbances = Disturbances(robot, data)
         """Pushes and the elastic band (ctl/push, ctl/band): forces applied before each step."""
+        self.faults = Faults(robot, data)
+        """Motor and sensor faults (ctl/faults): in the actuators' figures and in what the states report."""
         self.attach(robot, data)
         self.reset()
         self.resets = 0
@@ -178,6 +181,7 @@ class Simulation:
         self.disturbances.attach(robot, data)  # a rebuild: the pushes end, the band keeps its setting
         self.variants = Variants(robot, self.disturbances.bodies)
         """The variant of the robot drawn at reset (ctl/reset `randomize`): a new model starts nominal."""
+        self.faults.attach(robot, data)  # a rebuild: the faults stay, written into the new model
         self._index = {name: i for i, name in enumerate(robot.joint_names)}
         self._applied: MotorTargets | None = None
         self._actuators = actuator_index(robot)
@@ -228,6 +232,7 @@ class Simulation:
         request = request or ResetRequest()
         q = self.check_reset(request)  # checked before anything changes
         self.variants.apply(request.randomize)  # the model first: the data's reset runs mj_forward on it
+        self.faults.limits_changed()  # a weak motor's peak is the variant's peak scaled
         reset(self.robot, self.data, q, request.base_height_m)
         with self._lock:
             self._targets = MotorTargets.hold(self.robot, q)
@@ -237,6 +242,7 @@ class Simulation:
         self.resets += 1
         self.fallen_since = None
         self.disturbances.clear_pushes()  # a new episode: no push of the last one acts on; the band holds on
+        self.faults.relock()  # the faults stay; a locked joint is held in the new pose
         self._apply(self._targets)
         if self.robot.slot is None:  # a robot of a world: mjdata.reset ran its own forward, the others untouched
             mujoco.mj_forward(self.robot.model, self.data)
@@ -394,8 +400,13 @@ class Simulation:
         strength = self.variants.strength
         if strength is not None:  # a variant's weaker or stronger motors: the whole torque scales (variants.py)
             neg_kp, neg_kd, ctrl = neg_kp * strength, neg_kd * strength, ctrl * strength
-        write_actuators(self.robot, self.data, self._actuators, neg_kp, neg_kd, ctrl)
+        # Then the faults' (a weak motor scales what the variant's gives; a limp one gives nothing).
+        write_actuators(self.robot, self.data, self._actuators, *self.faults.scale_actuators(neg_kp, neg_kd, ctrl))
         self._applied = targets
+
+    def faults_changed(self) -> None:
+        """(physics lock held) The motor faults changed: the actuators get the held targets again, through them."""
+        self._apply(self._safe if self._watchdog_on else self._targets)
 
     def apply_targets(self, check_watchdog: bool = True) -> None:
         """Give the actuators the current targets, when they changed since the last step (the world calls it

@@ -4,7 +4,7 @@ Reads:   cmd/motors (MotorCommand, latest wins at each physics step; under the l
          alone every command advances, in arrival order)
 Writes:  state/joints, state/odom, state/imu, state/contacts (state_rate_hz, sim time), state/sim (SimStatus,
          status_rate_hz, wall time), state/applied (AppliedCommand, lockstep alone: one per advance)
-Serves:  ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode, ctl/push, ctl/band (-> CtlReply), ctl/advance (lockstep alone:
+Serves:  ctl/reset, ctl/pause, ctl/resume, ctl/step, ctl/mode, ctl/push, ctl/band, ctl/faults (-> CtlReply), ctl/advance (lockstep alone:
          MotorCommand -> AdvanceReply), info/robot, info/urdf, info/mesh/{path} (common/description.py)
 Token:   alive/sim
 
@@ -45,6 +45,7 @@ from zensim.schemas import (
     Codec,
     CtlReply,
     DecodeError,
+    FaultsRequest,
     Keys,
     Mode,
     ModeRequest,
@@ -64,6 +65,7 @@ from zensim.schemas.messages import Message
 
 from .engine import Engine
 from .disturbances import DisturbanceError
+from .faults import FaultError
 from .physics import CommandError
 from .world import WHOLE_WORLD
 from .requests import Request, Requests, run_guarded
@@ -151,6 +153,7 @@ class RobotEndpoint:
             self._ctl("mode", ModeRequest, self._mode),
             self._ctl("push", PushRequest, self._push),
             self._ctl("band", BandRequest, self._band),
+            self._ctl("faults", FaultsRequest, self._faults),
         ]
         if advances:
             self._queryables.append(TypedQueryable(
@@ -208,6 +211,8 @@ class RobotEndpoint:
             last_push=disturbances.last_push,
             band=disturbances.band_state() if disturbances.band_holds() else None,
             variant=sim.variants.variant,
+            faults=sim.faults.state,
+            faults_set=sim.faults.changes,
         ))
 
     def jumped(self, rebuilt: bool) -> None:
@@ -371,6 +376,17 @@ class RobotEndpoint:
             self.engine.request_log.info("%s: band %s, %.3g m", self.keys.robot, "on" if band.on else "off",
                                          band.length_m)
         return msgspec.structs.replace(self._status_reply(), band=band)
+
+    def _faults(self, request: FaultsRequest) -> CtlReply:
+        try:
+            faults = self.sim.faults.request(request)
+        except FaultError as exc:
+            return self._status_reply(ok=False, error=bounded(str(exc)))
+        if request.verb is not None:
+            self.sim.faults_changed()
+            self.engine.request_log.info("%s: faults %s (%d joints, sensors %s)", self.keys.robot, request.verb,
+                                         len(request.joints), "noisy" if request.sensors else "exact")
+        return msgspec.structs.replace(self._status_reply(), faults=faults)
 
     def _status_reply(self, ok: bool = True, error: str | None = None, off_loop: bool = False) -> CtlReply:
         """The reply to a ctl request; `off_loop` on a thread without the physics lock (from the snapshot)."""

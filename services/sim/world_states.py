@@ -85,6 +85,8 @@ class StateReader:
 
     def __init__(self, sims: Sequence[Simulation]) -> None:
         robots = [sim.robot for sim in sims]
+        self.faults = [sim.faults for sim in sims]
+        """Each robot's faults: their sensor part changes what `messages` reports."""
         self.qpos = np.concatenate([r.qpos_adr for r in robots])
         self.dof = np.concatenate([r.dof_adr for r in robots])
         ends = np.cumsum([r.nu for r in robots])
@@ -110,10 +112,15 @@ class StateReader:
     def messages(self, frame: Frame) -> list[States]:
         """Each robot's messages of a frame, in the order of the sims given (any thread)."""
         t, s = frame.sim_time_s, frame.sensors
-        q, dq, tau = frame.q.tolist(), frame.dq.tolist(), frame.tau.tolist()
+        q, dq, gyro_rows, accel_rows = frame.q, frame.dq, s["imu_gyro"], s["imu_accel"]
+        if any(faults.senses() for faults in self.faults):  # what the faulty sensors report, not the truth
+            q, dq, gyro_rows, accel_rows = q.copy(), dq.copy(), gyro_rows.copy(), accel_rows.copy()
+            for i, ((a, b), faults) in enumerate(zip(self.spans, self.faults)):
+                faults.observe(q[a:b], dq[a:b], gyro_rows[i], accel_rows[i])
+        q, dq, tau = q.tolist(), dq.tolist(), frame.tau.tolist()
         ang_body = _rotate_by_inverse(s["base_quat"], s["base_angvel"])
         pos, quat, lin, ang = s["base_pos"].tolist(), s["base_quat"].tolist(), s["base_linvel"].tolist(), ang_body.tolist()
-        imu_quat, gyro, accel = s["imu_quat"].tolist(), s["imu_gyro"].tolist(), s["imu_accel"].tolist()
+        imu_quat, gyro, accel = s["imu_quat"].tolist(), gyro_rows.tolist(), accel_rows.tolist()
         # The sensor gives the force the foot exerts on what it touches: the force ON the foot is its opposite.
         found = frame.feet_net[:, 0]
         points, touching = found.astype(int).tolist(), (found > 0).tolist()

@@ -1,0 +1,109 @@
+"""Step time and state-read time of the G1 with faults active against none, side by side (issue 29 item 3).
+
+    .venv/bin/python benchmarks/faults.py [--steps 2000] [--rounds 15]
+
+Each case is the sim's own World (services/sim/world.py: the step the service runs) of the G1 floating and
+holding its default pose on its gains, settled for 1 s, then given the case's faults:
+
+  none      no fault
+  motors    a weak left knee (torque_scale 0.9), a locked left elbow, a limp left wrist: faults written into
+            the model once (services/sim/faults.py), nothing per step
+  sensors   an encoder offset, IMU noise and bias, joint q and dq noise: added at each state read
+  all       both
+
+Every round times, from the same settled state and with the cases interleaved (the machine's load falls on
+all alike), `--steps` steps two ways and the state reads of them:
+
+  step      World.step(1) per step: the real-time loop
+  advance   World.step(10, held=True) per lockstep advance (MuJoCo runs the 10 steps in one call)
+  read      World.reader.read per state (the one state reader: take the arrays, add the sensor faults, build
+            JointState, Odometry, Imu, Contacts): once per 5 steps at 100 Hz states
+
+Time is the thread's CPU time (time.thread_time); medians over rounds, and each case's ratio to none.
+Results go to stdout; docs/benchmarks.md keeps the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import mujoco
+
+from zensim.robots import robot_files
+from zensim.schemas import FaultsRequest, JointFault, MotorCommand, SensorFaults
+from zensim.sim.physics import Limits
+from zensim.sim.world import World
+
+SETTLE_S = 1.0
+CASES = ("none", "motors", "sensors", "all")
+MOTORS = (JointFault(joint="left_knee_joint", torque_scale=0.9), JointFault(joint="left_elbow_joint", locked=True),
+          JointFault(joint="left_wrist_roll_joint", limp=True))
+OFFSET = (JointFault(joint="right_knee_joint", encoder_offset_rad=0.02),)
+SENSORS = SensorFaults(gyro_noise_std_rad_s=0.005, gyro_bias_rad_s=(0.01, 0.0, 0.0), accel_noise_std_m_s2=0.05,
+                       accel_bias_m_s2=(0.0, 0.1, 0.0), q_noise_std_rad=0.001, dq_noise_std_rad_s=0.02)
+
+
+def settled() -> tuple[World, mujoco.MjData]:
+    world = World.alone("bench", robot_files("g1"), "floating", Limits(5000, 500), 1e9)
+    (sim,) = world.robots
+    sim.accept_command(MotorCommand(q=sim.robot.default_q.tolist()))
+    world.step(int(SETTLE_S / world.timestep_s))
+    snapshot = mujoco.MjData(world.model)
+    mujoco.mj_copyData(snapshot, world.model, world.data)
+    return world, snapshot
+
+
+def inject(world: World, case: str) -> None:
+    """Put the case's faults on (from the settled state)."""
+    joints = (MOTORS if case in ("motors", "all") else ()) + (OFFSET if case in ("sensors", "all") else ())
+    sensors = SENSORS if case in ("sensors", "all") else None
+    sim = world.robots[0]
+    sim.faults.request(FaultsRequest(verb="set", joints=joints, sensors=sensors, seed=1) if joints or sensors
+                       else FaultsRequest(verb="clear"))
+    sim.faults_changed()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--rounds", type=int, default=15)
+    args = parser.parse_args()
+    cases = {case: settled() for case in CASES}
+    hows = ("step", "advance", "read")
+    times: dict[tuple[str, str], list[float]] = {(case, how): [] for case in CASES for how in hows}
+    reads = args.steps // 5
+    for _ in range(args.rounds):
+        for how in hows:
+            for case, (world, snapshot) in cases.items():
+                mujoco.mj_copyData(world.data, world.model, snapshot)
+                inject(world, case)
+                start = time.thread_time()
+                if how == "step":
+                    for _ in range(args.steps):
+                        world.step(1)
+                elif how == "advance":
+                    for _ in range(args.steps // 10):
+                        world.step(10, held=True)
+                else:
+                    for k in range(reads):
+                        world.reader.read(world.data, [k])
+                elapsed = time.thread_time() - start
+                times[case, how].append(elapsed / (reads if how == "read" else args.steps) * 1e6)
+                assert not world.fallen(world.take([0]))[0], f"{case}: the robot fell; the case measures nothing"
+    print(f"{args.rounds} rounds of {args.steps} steps; CPU us per physics step (read: per state), median "
+          "(ratio to none)")
+    print(f"{'case':<10} {'step':>16} {'advance':>16} {'read':>16}")
+    for case in CASES:
+        cells = []
+        for how in hows:
+            median = statistics.median(times[case, how])
+            base = statistics.median(times["none", how])
+            cells.append(f"{median:7.1f} ({median / base:4.2f})")
+        print(f"{case:<10} {cells[0]:>16} {cells[1]:>16} {cells[2]:>16}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

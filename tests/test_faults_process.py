@@ -1,0 +1,177 @@
+"""Faults on demand as users inject them: `python -m zensim sim --clock lockstep`, plain zenoh clients on loopback
+sending JSON to ctl/faults and driving the robot through ctl/advance.
+
+Lockstep makes the checks exact: the states are the instants each advance replies with, so a run without
+sensor faults is the truth a run with them is compared to, figure by figure, and two runs with one seed are
+compared bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from support import Latest, ctl
+from test_lockstep_process import advance, scripted_command
+from test_sim_process import robot_info, wait_alive
+from zensim.schemas import Keys, SimStatus
+
+SHOULDER, ELBOW, WRIST = "left_shoulder_pitch_joint", "left_elbow_joint", "right_elbow_joint"
+
+
+def command(info: dict, tau: dict[str, float] | None = None) -> dict:
+    """Hold the default pose, with feed-forward torques on some joints."""
+    names = info["joint_names"]
+    torques = [0.0] * len(names)
+    for name, value in (tau or {}).items():
+        torques[names.index(name)] = value
+    return {"q": info["default_q"][info["mode"]], "tau": torques}
+
+
+class TestMotorFaults:
+    def test_a_locked_joint_holds_under_load_a_limp_one_carries_no_torque_and_both_end_when_cleared(
+            self, start_service, zsession, robot_id) -> None:
+        keys = Keys(robot_id)
+        status = Latest(zsession, keys.sim_status, SimStatus)
+        start_service("sim", "--clock", "lockstep")
+        wait_alive(zsession, keys)
+        info = robot_info(zsession, keys)
+        names = info["joint_names"]
+        shoulder, elbow = names.index(SHOULDER), names.index(ELBOW)
+        for _ in range(50):  # 1 s: the G1 lands and stands on its gains
+            state = advance(zsession, keys, command(info))
+        assert abs(state["joints"]["tau"][elbow]) > 0.05, "a healthy elbow carries its forearm"
+
+        reply = ctl(zsession, keys.ctl("faults"), {"verb": "set", "joints": [
+            {"joint": SHOULDER, "locked": True}, {"joint": ELBOW, "limp": True}]})
+        assert reply["ok"] is True, reply
+        locked_q = reply["faults"]["locked_q"][0]
+        assert locked_q == pytest.approx(state["joints"]["q"][shoulder], abs=1e-9), "held where it was"
+        # The shoulder's own motor pushes 20 N m (the load) for 1 s: the lock holds it.
+        pushed = command(info, {SHOULDER: 20.0})
+        for _ in range(50):
+            state = advance(zsession, keys, pushed)
+            assert abs(state["joints"]["dq"][shoulder]) < 1e-3, state["joints"]["dq"][shoulder]
+            assert state["joints"]["q"][shoulder] == pytest.approx(locked_q, abs=1e-3)
+            assert state["joints"]["tau"][elbow] == 0.0, "a limp joint's motor gives nothing at all"
+        seen = status.wait(lambda s: s.faults is not None, what="the faults in state/sim")
+        assert seen.faults_set == 1 and {f.joint for f in seen.faults.joints} == {SHOULDER, ELBOW}
+        assert seen.faults.locked_q == (pytest.approx(locked_q),)
+
+        cleared = ctl(zsession, keys.ctl("faults"), {"verb": "clear"})
+        assert cleared["ok"] is True and cleared["faults"] is None
+        speeds = []
+        for _ in range(10):
+            state = advance(zsession, keys, pushed)
+            speeds.append(abs(state["joints"]["dq"][shoulder]))
+        assert max(speeds) > 0.1, "without the lock the same torque swings the shoulder: the check can fail"
+        assert abs(state["joints"]["tau"][elbow]) > 0.05, "the elbow's motor works again"
+        status.wait(lambda s: s.faults is None and s.faults_set == 2, what="the faults gone from state/sim")
+
+    def test_a_weak_motor_gives_its_share_of_the_torque(self, start_service, zsession, robot_id) -> None:
+        keys = Keys(robot_id)
+        start_service("sim", "--clock", "lockstep", "--mode", "fixed")
+        wait_alive(zsession, keys)
+        info = robot_info(zsession, keys)
+        elbow = info["joint_names"].index(ELBOW)
+        # Zero gains and a pure feed-forward torque: the motor's torque is the command's, times its factor.
+        n = len(info["joint_names"])
+        torque = {**command(info, {ELBOW: 2.0}), "kp": [0.0] * n, "kd": [0.0] * n}
+        assert advance(zsession, keys, torque)["joints"]["tau"][elbow] == pytest.approx(2.0)
+        assert ctl(zsession, keys.ctl("faults"), {"verb": "set", "joints": [{"joint": ELBOW, "torque_scale": 0.6}]})["ok"]
+        assert advance(zsession, keys, torque)["joints"]["tau"][elbow] == pytest.approx(1.2)
+
+
+class TestSensorFaults:
+    def test_an_encoder_offset_and_an_imu_bias_show_as_exactly_that_against_a_run_without_them(
+            self, start_service, zsession, robot_id) -> None:
+        ids = [robot_id + "true", robot_id + "faulty"]
+        for rid in ids:
+            start_service("sim", "--clock", "lockstep", env={"ZENSIM_ROBOT_ID": rid})
+        truth, faulty = Keys(ids[0]), Keys(ids[1])
+        for keys in (truth, faulty):
+            wait_alive(zsession, keys)
+        info = robot_info(zsession, truth)
+        wrist = info["joint_names"].index(WRIST)
+        gyro_bias, accel_bias = [0.02, -0.01, 0.005], [0.3, 0.0, -0.2]
+        reply = ctl(zsession, faulty.ctl("faults"), {"verb": "set", "joints": [
+            {"joint": WRIST, "encoder_offset_rad": 0.1}], "sensors": {"gyro_bias_rad_s": gyro_bias,
+                                                                     "accel_bias_m_s2": accel_bias}})
+        assert reply["ok"] is True, reply
+        for k in range(30):  # the same open-loop commands to both: the physics is the same
+            cmd = scripted_command(k, info, info["default_q"][info["mode"]])
+            real, seen = advance(zsession, truth, cmd), advance(zsession, faulty, cmd)
+            assert seen["odom"] == real["odom"], "a sensor fault leaves the physics alone"
+            offsets = np.subtract(seen["joints"]["q"], real["joints"]["q"])
+            assert offsets[wrist] == pytest.approx(0.1, abs=1e-12)
+            assert np.delete(offsets, wrist).tolist() == [0.0] * (len(offsets) - 1)
+            assert seen["joints"]["dq"] == real["joints"]["dq"]
+            assert np.subtract(seen["imu"]["gyro"], real["imu"]["gyro"]) == pytest.approx(gyro_bias, abs=1e-12)
+            assert np.subtract(seen["imu"]["accel"], real["imu"]["accel"]) == pytest.approx(accel_bias, abs=1e-12)
+            assert seen["imu"]["quat_wxyz"] == real["imu"]["quat_wxyz"]
+
+    def test_noise_is_seeded_one_seed_gives_the_same_run_another_a_different_one(
+            self, start_service, zsession, robot_id) -> None:
+        ids = [robot_id + "a", robot_id + "b", robot_id + "c"]
+        seeds = [7, 7, 8]
+        for rid in ids:
+            start_service("sim", "--clock", "lockstep", env={"ZENSIM_ROBOT_ID": rid})
+        noise = {"gyro_noise_std_rad_s": 0.01, "accel_noise_std_m_s2": 0.1, "q_noise_std_rad": 0.002,
+                 "dq_noise_std_rad_s": 0.05}
+        runs = []
+        for rid, seed in zip(ids, seeds):
+            keys = Keys(rid)
+            wait_alive(zsession, keys)
+            info = robot_info(zsession, keys)
+            assert ctl(zsession, keys.ctl("faults"), {"verb": "set", "sensors": noise, "seed": seed})["ok"]
+            q = list(info["default_q"][info["mode"]])
+            states = []
+            for k in range(60):  # closed loop: the noise the controller reads feeds back into the physics
+                reply = advance(zsession, keys, scripted_command(k, info, q))
+                assert reply["ok"], reply
+                q = reply["joints"]["q"]
+                states.append(json.dumps([reply["joints"], reply["odom"], reply["imu"]]))  # equal text: equal bits
+            runs.append(states)
+        differing = [k for k, (a, b) in enumerate(zip(runs[0], runs[1])) if a != b]
+        assert not differing, f"one seed, two runs: the states differ from step {differing[0]} on"
+        assert runs[0][0] != runs[2][0], "another seed, other noise from the first state on"
+        assert runs[0][-1] != runs[2][-1]
+
+
+class TestRefusals:
+    def test_bad_fault_requests_are_refused_whole_and_counted(self, start_service, zsession, robot_id) -> None:
+        keys = Keys(robot_id)
+        status = Latest(zsession, keys.sim_status, SimStatus)
+        start_service("sim", "--paused", "true")
+        wait_alive(zsession, keys)
+        good = {"joint": ELBOW, "limp": True}
+        bad: list[tuple[dict, str]] = [
+            ({"verb": "set", "joints": [good, {"joint": "tail_joint", "locked": True}]}, "tail_joint"),
+            ({"verb": "set", "joints": [{"joint": ELBOW, "torque_scale": 1e9}]}, "torque_scale"),
+            ({"verb": "set", "joints": [{"joint": ELBOW, "torque_scale": -0.5}]}, "torque_scale"),
+            ({"verb": "set", "joints": [{"joint": ELBOW, "encoder_offset_rad": 7.0}]}, "encoder_offset_rad"),
+            ({"verb": "set", "joints": [{"joint": ELBOW, "locked": True, "limp": True}]}, "not both"),
+            ({"verb": "set", "joints": [good, good]}, "more than one"),
+            ({"verb": "set", "joints": [good], "sensors": {"gyro_noise_std_rad_s": 1e6}}, "gyro_noise_std_rad_s"),
+            ({"verb": "set", "sensors": {"accel_bias_m_s2": [0, 0, float("nan")]}}, ""),  # JSON has no NaN
+            ({"verb": "set", "sensors": {"q_noise_std_rad": -1}}, "q_noise_std_rad"),
+            ({"verb": "set", "seed": -3}, "seed"),
+            ({"verb": "break"}, "verb"),
+            ({"verb": "clear", "joints": [good]}, "verb: set"),
+            ({"verb": "set", "joints": [{**good, "melted": True}]}, "melted"),
+        ]
+        for payload, why in bad:
+            reply = ctl(zsession, keys.ctl("faults"), payload)
+            assert reply["ok"] is False and why in reply["error"], (payload, reply)
+            assert reply["faults"] is None
+        seen = status.wait(lambda s: s.rejected_requests >= len(bad), what="the refusals counted")
+        assert seen.rejected_requests == len(bad) and seen.faults is None and seen.faults_set == 0
+        # A wildcard query reaches every ctl verb: it sets nothing.
+        list(zsession.get(f"{keys.root}/ctl/*", payload=json.dumps({"verb": "set", "joints": [good]}), timeout=3.0))
+        # The same request, sane, is carried out: the refusals were about what was wrong.
+        reply = ctl(zsession, keys.ctl("faults"), {"verb": "set", "joints": [good]})
+        assert reply["ok"] is True and reply["faults"]["joints"][0]["limp"] is True
+        assert ctl(zsession, keys.ctl("faults"))["faults"]["joints"][0]["joint"] == ELBOW, "no verb: the state"
+        status.wait(lambda s: s.faults is not None and s.faults_set == 1, what="the good request")
