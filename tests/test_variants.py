@@ -120,3 +120,23 @@ def test_a_world_comes_back_to_nominal_bit_for_bit(tmp_path: Path) -> None:
     now = model_arrays(world.model)
     assert [name for name in MODEL_FIELDS if not np.array_equal(nominal[name], now[name])] == []
     assert (world.model.stat.meaninertia, world.model.stat.meanmass) == stat
+
+
+def test_a_weak_motor_fault_scales_the_variants_torque_limit_not_the_nominal_one() -> None:
+    """ctl/faults' torque_scale and a variant's motor_strength both write the joint's torque limit: a reset that
+    draws a variant under a fault gets the variant's limit times the fault's scale (and nominal again after)."""
+    from zensim.schemas import FaultsRequest, JointFault
+
+    world = alone()
+    sim = world.robots[0]
+    joint = sim.robot.joint_names.index("left_knee_joint")
+    jnt = int(world.model.actuator_trnid[sim.robot.actuator_ids[joint], 0])
+    nominal = world.model.jnt_actfrcrange[jnt].copy()
+    sim.faults.request(FaultsRequest(verb="set", joints=(JointFault(joint="left_knee_joint", torque_scale=0.5),)))
+    assert np.allclose(world.model.jnt_actfrcrange[jnt], 0.5 * nominal)
+    sim.reset(ResetRequest(randomize=Randomize(seed=5, motor_strength=(0.6, 0.9))))
+    strength = float(sim.variants.strength[joint])
+    assert 0.6 <= strength <= 0.9
+    assert np.allclose(world.model.jnt_actfrcrange[jnt], 0.5 * strength * nominal)
+    sim.reset()
+    assert np.allclose(world.model.jnt_actfrcrange[jnt], 0.5 * nominal)
