@@ -7,6 +7,7 @@ of its commands whatever loads the machine, and the scenario's events land on si
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 import textwrap
@@ -115,3 +116,71 @@ def test_a_faults_event_is_refused_whole_when_the_sim_does_not_serve_ctl_faults(
     # Until the sim serves ctl/faults, one line says why the file cannot play; nothing was sent.
     lines = [line for line in scenario.log().splitlines() if line.startswith("zensim scenario:")]
     assert len(lines) == 1 and "does not serve ctl/faults" in lines[0], scenario.log()
+
+
+def test_a_short_course_runs_the_reference_controller_end_to_end_and_writes_the_table(tmp_path):
+    """`zensim course` starts its own router, a lockstep sim and `zensim loco` per run, and stops them all."""
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "zensim", "course", "--items", "flat,push_right", "--seeds", "1",
+                           "--output-dir", str(out), "--record", "true", "--log-level", "WARNING"],
+                          capture_output=True, text=True, timeout=400)
+    assert done.returncode == 0, done.stdout + done.stderr
+    table = (out / "course.md").read_text()
+    assert "| flat | 1/1 |" in table and "| push_right | 1/1 |" in table, table
+    runs = json.loads((out / "course.json").read_text())["runs"]
+    assert [(r["item"], r["seed"]) for r in runs] == [("flat", 0), ("push_right", 0)]
+    flat, pushed = (r["result"] for r in runs)
+    assert flat["completed"] and flat["survived"] and 3.0 < flat["distance_m"] < 5.0, flat
+    assert [round(math.hypot(*p["force_n"])) for p in pushed["pushes"]] == [40, 80, 120], pushed
+    assert all(p["force_n"][1] > 0 for p in pushed["pushes"]), pushed  # from the right: towards +y
+    assert (out / "flat-s0.mcap").stat().st_size > 100_000 and (out / "push_right-s0.mcap").stat().st_size > 100_000
+    assert "flat" in done.stdout and "survived" in done.stdout, done.stdout
+
+
+SQUAT_HOLDER = textwrap.dedent("""
+    # A user's controller written against cmd/motors alone: hold the spawn squat with the floating gains.
+    import json, sys, time, zenoh
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    robot = sys.argv[2]
+    with zenoh.open(conf) as session:
+        motors = session.declare_publisher(f"zensim/{robot}/cmd/motors")
+        command = None
+        while True:
+            if command is None:  # (again) ask the sim for the pose and gains; the course starts a sim per run
+                for reply in session.get(f"zensim/{robot}/info/robot?format=json", timeout=1.0):
+                    if reply.ok is not None:
+                        info = json.loads(reply.ok.payload.to_bytes())
+                        command = json.dumps({"names": info["joint_names"], "q": info["default_q"]["floating"],
+                                              "kp": info["gains"]["floating"]["kp"], "kd": info["gains"]["floating"]["kd"]})
+                if command is None:
+                    time.sleep(0.1)
+                    continue
+            motors.put(command)  # lockstep: each command advances the sim 20 ms
+            time.sleep(0.005)
+""")
+
+
+def test_a_user_controller_on_cmd_motors_runs_a_course_item_and_gets_its_row(router_endpoint, robot_id, tmp_path):
+    controller = subprocess.Popen([sys.executable, "-c", SQUAT_HOLDER, router_endpoint, robot_id], start_new_session=True)
+    try:
+        out = tmp_path / "out"
+        done = subprocess.run([sys.executable, "-m", "zensim", "course", "--controller", "external", "--items", "push_front",
+                               "--seeds", "1", "--output-dir", str(out), "--robot-id", robot_id, "--zenoh-mode", "client",
+                               "--zenoh-connect", router_endpoint, "--log-level", "WARNING"],
+                              capture_output=True, text=True, timeout=400)
+    finally:
+        controller.terminate()
+        controller.wait(10)
+    assert done.returncode == 0, done.stdout + done.stderr
+    runs = json.loads((out / "course.json").read_text())["runs"]
+    assert len(runs) == 1 and runs[0]["item"] == "push_front", runs
+    result = runs[0]["result"]
+    # The squat holder neither walks nor balances: it covers the item's 15 s (its commands are the clock) and
+    # the row says what happened to it, fallen or not, with the pushes it met.
+    assert result["completed"], result
+    assert len(result["pushes"]) >= 1 and result["events"][0]["type"] == "velocity", result
+    row = next(line for line in (out / "course.md").read_text().splitlines() if line.startswith("| push_front | 0 |"))
+    assert ("| yes |" in row) == result["survived"] and result["distance_m"] < 2.0, row

@@ -1,6 +1,6 @@
 """What a scenario run scores, from the states it saw: pure arithmetic, no network.
 
-- survived: `state/sim` never said `fallen` (and no state showed the base below `FALLEN_HEIGHT_M` of its
+- survived: the run reached its end and `state/sim` never said `fallen` (and no state showed the base below `FALLEN_HEIGHT_M` of its
   start: a lockstep sim can run ahead of its 10 Hz status, so a fall that a reset undid is still seen).
 - distance: the base's horizontal displacement, start to end (state/odom), m.
 - tracking error: RMS over the run's windows of |achieved - commanded| horizontal velocity in the heading
@@ -168,7 +168,7 @@ def _recovery(trace: Trace, start_s: float, end_s: float) -> float | None:
 def score(trace: Trace, name: str, pushes: Sequence[tuple[float, tuple[float, ...], float]], joint_names: Sequence[str],
           completed: bool, events: Sequence[EventOutcome], note: str = "", recording: str = "") -> ScenarioResult:
     """The result of a run from its trace; `pushes` are (start, force, duration) as the sim applied them."""
-    survived = trace.fell_at_s is None
+    survived = trace.fell_at_s is None and completed  # a run cut short proves nothing
     distance = math.dist(trace.xy[0], trace.xy[-1]) if trace.xy else 0.0
     push_windows = [(start, start + duration + SETTLED_S) for start, _, duration in pushes]
     linear: list[float] = []
@@ -204,7 +204,8 @@ def result_lines(result: ScenarioResult) -> list[str]:
     """One line per result, as `zensim scenario` prints them."""
     lines = [f"scenario {result.name}: {'completed' if result.completed else 'stopped'} at {result.duration_s:.2f} s"
              + (f" ({result.note})" if result.note else ""),
-             f"survived: {'yes' if result.survived else f'no (fell at {result.fell_at_s:.2f} s)'}",
+             "survived: " + ("yes" if result.survived else "no (the run did not reach its end)" if result.fell_at_s is None
+                             else f"no (fell at {result.fell_at_s:.2f} s)"),
              f"distance: {result.distance_m:.2f} m",
              "tracking error: " + ("no velocity commanded" if result.tracking_error_m_s is None else
                                    f"{result.tracking_error_m_s:.3f} m/s RMS, yaw rate {result.yaw_rate_error_rad_s:.3f} rad/s")]
