@@ -27,7 +27,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Sequence
-from typing import Annotated, ClassVar, Final
+from typing import Annotated, Any, ClassVar, Final
 
 import msgspec
 import zenoh
@@ -129,7 +129,7 @@ class ScenarioRunner:
         self.scenario = scenario
         self.states: queue.Queue[tuple[str, object]] = queue.Queue(MAX_QUEUED)
         self.joint_names: tuple[str, ...] = ()
-        self._codecs = {keys.odom: Codec(Odometry), keys.sim_status: Codec(SimStatus), keys.joints: Codec(JointState)}
+        self._codecs: dict[str, Codec[Any]] = {keys.odom: Codec(Odometry), keys.sim_status: Codec(SimStatus), keys.joints: Codec(JointState)}
         self._subscribers: list[zenoh.Subscriber] = []
 
     def check_robot(self, timeout_s: float) -> None:
@@ -160,7 +160,8 @@ class ScenarioRunner:
         querier = self.session.declare_querier(key)
         try:
             deadline = time.monotonic() + SERVED_WAIT_S
-            while not querier.matching_status.matching:
+            # zenoh-python 1.x answers a MatchingStatus (its stubs say bool): read it either way.
+            while not bool(getattr(querier.matching_status, "matching", querier.matching_status)):
                 if time.monotonic() > deadline:
                     return False
                 time.sleep(0.05)
@@ -200,6 +201,7 @@ class ScenarioRunner:
         t0: float | None = None
         run_id = episode = ""
         started = False
+        first_wall: float | None = None
         velocity: Velocity | None = None
         next_velocity_put = 0.0
         note = ""
@@ -242,6 +244,7 @@ class ScenarioRunner:
                 if t < now:
                     continue  # a status already took the clock here: the state only adds to the trace
             last_state, timeout_s, now, started = time.monotonic(), stall_timeout_s, t, True
+            first_wall = first_wall or last_state
             fired = self._due(pending, t, t0, outcomes, pushes, trace)
             if fired is not None:
                 velocity, next_velocity_put = fired, t + VELOCITY_RESEND_S
@@ -258,7 +261,8 @@ class ScenarioRunner:
         if not trace.times:
             trace.add_odometry(0.0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
             note = note or "no state came"
-        return score(trace, self.scenario.name, pushes, self.joint_names, completed, outcomes, note, recording)
+        wall_s = last_state - first_wall if first_wall is not None else 0.0
+        return score(trace, self.scenario.name, pushes, self.joint_names, completed, outcomes, note, recording, wall_s)
 
     def _due(self, pending: list, t: float, t0: float, outcomes: list[EventOutcome],
              pushes: list[tuple[float, tuple[float, ...], float]], trace: Trace) -> Velocity | None:

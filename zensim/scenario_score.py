@@ -8,7 +8,7 @@
   counted only once a velocity was commanded, and not while a push is recovering.
 - recovery after each push: sim time from the push's start until the base is upright (tilt under
   `UPRIGHT_TILT_RAD`) and its windowed velocity within `RECOVERED_ERROR_M_S` of the command, and stays so
-  for `SETTLED_S`; None when it never did (or fell).
+  for `SETTLED_S` (before any fall); None when it never did.
 - peak torque: the largest |tau| of any joint (state/joints) and which joint.
 """
 
@@ -76,6 +76,8 @@ class ScenarioResult(msgspec.Struct, frozen=True, kw_only=True):
     note: str = ""
     """Why the run did not complete, or what else the reader must know."""
     recording: str = ""
+    wall_s: float = 0.0
+    """Wall time from the first state to the end, s (duration_s / wall_s: the run's real-time factor)."""
 
 
 @dataclass
@@ -166,7 +168,8 @@ def _recovery(trace: Trace, start_s: float, end_s: float) -> float | None:
 
 
 def score(trace: Trace, name: str, pushes: Sequence[tuple[float, tuple[float, ...], float]], joint_names: Sequence[str],
-          completed: bool, events: Sequence[EventOutcome], note: str = "", recording: str = "") -> ScenarioResult:
+          completed: bool, events: Sequence[EventOutcome], note: str = "", recording: str = "",
+          wall_s: float = 0.0) -> ScenarioResult:
     """The result of a run from its trace; `pushes` are (start, force, duration) as the sim applied them."""
     survived = trace.fell_at_s is None and completed  # a run cut short proves nothing
     distance = math.dist(trace.xy[0], trace.xy[-1]) if trace.xy else 0.0
@@ -185,8 +188,10 @@ def score(trace: Trace, name: str, pushes: Sequence[tuple[float, tuple[float, ..
     results = []
     for start, force, duration in pushes:
         recovered = None
-        if trace.fell_at_s is None or trace.fell_at_s < start:
-            recovered = _recovery(trace, start, start + duration) if survived else None
+        if trace.fell_at_s is None or start < trace.fell_at_s:  # a push before a fall may have been ridden out
+            recovered = _recovery(trace, start, start + duration)
+            if recovered is not None and trace.fell_at_s is not None and start + recovered + SETTLED_S > trace.fell_at_s:
+                recovered = None
         results.append(PushResult(at_s=round(start, 4), force_n=tuple(round(f, 3) for f in force),
                                   duration_s=duration, recovered_s=None if recovered is None else round(recovered, 3)))
     joint = joint_names[trace.peak_joint] if 0 <= trace.peak_joint < len(joint_names) else ""
@@ -197,7 +202,7 @@ def score(trace: Trace, name: str, pushes: Sequence[tuple[float, tuple[float, ..
         yaw_rate_error_rad_s=round(math.sqrt(sum(angular) / len(angular)), 4) if angular else None,
         pushes=tuple(results), peak_torque_nm=round(trace.peak_tau, 3), peak_torque_joint=joint,
         fell_at_s=None if trace.fell_at_s is None else round(trace.fell_at_s, 4), events=tuple(events),
-        refused_events=sum(not e.ok for e in events), note=note, recording=recording)
+        refused_events=sum(not e.ok for e in events), note=note, recording=recording, wall_s=round(wall_s, 3))
 
 
 def result_lines(result: ScenarioResult) -> list[str]:
@@ -217,6 +222,8 @@ def result_lines(result: ScenarioResult) -> list[str]:
     for event in result.events:
         if not event.ok:
             lines.append(f"event {event.type} at {event.at_s:g} s refused: {event.error}")
+    if result.wall_s > 0:
+        lines.append(f"wall time: {result.wall_s:.2f} s ({result.duration_s / result.wall_s:.1f} x real time)")
     if result.recording:
         lines.append(f"recording: {result.recording}")
     return lines
