@@ -7,7 +7,8 @@ Writes: ctl/push, ctl/band, ctl/loco, ctl/faults (queries), cmd/velocity (puts);
 The scenario follows the sim's clock: time 0 is the first state it sees, and an event fires once a state
 at or past its time arrives, real time or lockstep alike (under lockstep the controller is the clock, and
 the event lands within a few of its commands: the result says when each one fired). A velocity is put
-again every 0.5 s of sim time, each good for 2 s, so a scenario that dies leaves a robot that stops.
+again every 0.5 s of sim time, each good until the next velocity event or the end (so a runner that
+lags a fast lockstep controller never lets it lapse, and a scenario that dies leaves a robot that stops then).
 Before anything is sent the scenario is checked whole, and so is the robot's side: a `loco` event with no
 walking controller serving ctl/loco, or a `faults` event with a sim that does not serve ctl/faults, is
 refused with one line. The run ends at end_s, or early (said in the result) when the sim stalls for
@@ -45,10 +46,10 @@ from .scenario_score import EventOutcome, ScenarioResult, Trace, result_lines, s
 logger = logging.getLogger("zensim.scenario")
 
 PROG = "zensim scenario"
-VELOCITY_HOLD_S: Final = 2.0
-"""Each velocity put holds this long (sim time)..."""
 VELOCITY_RESEND_S: Final = 0.5
-"""... and is put again this often: a scenario that dies leaves a robot that stops within 2 s."""
+"""A velocity is put again this often (sim time), each put good until the scenario's next velocity or its end:
+the scenario's own schedule, not the runner's pace (a lockstep controller at 10x real time outruns a loaded
+machine's runner by seconds of sim time), ends it, and a scenario that dies leaves a robot that stops then."""
 QUERY_TIMEOUT_S: Final = 5.0
 MAX_QUEUED: Final = 100_000
 SERVED_WAIT_S: Final = 3.0
@@ -249,7 +250,7 @@ class ScenarioRunner:
             if fired is not None:
                 velocity, next_velocity_put = fired, t + VELOCITY_RESEND_S
             if velocity is not None and t >= next_velocity_put:
-                self.session.put(self.keys.velocity, msgspec.json.encode(velocity.command(VELOCITY_HOLD_S)))
+                self.session.put(self.keys.velocity, msgspec.json.encode(velocity.command(self._hold(velocity, t))))
                 next_velocity_put = t + VELOCITY_RESEND_S
             if t >= self.scenario.end_s:
                 break
@@ -263,6 +264,11 @@ class ScenarioRunner:
             note = note or "no state came"
         wall_s = last_state - first_wall if first_wall is not None else 0.0
         return score(trace, self.scenario.name, pushes, self.joint_names, completed, outcomes, note, recording, wall_s)
+
+    def _hold(self, velocity: Velocity, t: float) -> float:
+        """How long a velocity put at scenario time `t` holds: until the next velocity event, or the end."""
+        later = [e.at_s for e in self.scenario.events if isinstance(e, Velocity) and e.at_s > velocity.at_s]
+        return max(0.0, min(later + [self.scenario.end_s]) - t)
 
     def _due(self, pending: list, t: float, t0: float, outcomes: list[EventOutcome],
              pushes: list[tuple[float, tuple[float, ...], float]], trace: Trace) -> Velocity | None:
@@ -287,7 +293,7 @@ class ScenarioRunner:
         try:
             match event:
                 case Velocity():
-                    self.session.put(self.keys.velocity, msgspec.json.encode(event.command(VELOCITY_HOLD_S)))
+                    self.session.put(self.keys.velocity, msgspec.json.encode(event.command(self._hold(event, t))))
                     reply: dict = {"ok": True}
                 case Push():
                     reply = json.loads(self._query(self.keys.ctl_push, msgspec.to_builtins(event.request())))
