@@ -14,6 +14,8 @@ from zensim.ros1.settings import Ros1Settings
 from zensim.ros2.settings import Ros2Settings
 from zensim.unitree.settings import UnitreeSettings
 from zensim.viz.settings import VizSettings
+from zensim.scenario import ScenarioSettings
+from zensim.course import CourseSettings
 
 
 @pytest.mark.parametrize(
@@ -21,7 +23,8 @@ from zensim.viz.settings import VizSettings
      ("services/viz/README.md", VizSettings), ("docs/deployment.md", RouterSettings),
      ("services/unitree/README.md", UnitreeSettings), ("services/ros1/README.md", Ros1Settings),
      ("services/ros2/README.md", Ros2Settings),
-     ("services/loco/README.md", LocoSettings)]
+     ("services/loco/README.md", LocoSettings),
+     ("docs/bench.md", ScenarioSettings), ("docs/bench.md", CourseSettings)]
 )
 def test_service_readme_lists_every_setting(readme: str, settings: type) -> None:
     """Paste `settings_table(...)` output into the README when this fails."""

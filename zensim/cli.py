@@ -13,6 +13,8 @@
     zensim ros2     the ROS 2 face: rmw_zenoh's keys on zensim's router, and DDS
     zensim loco     the walking controller: cmd/velocity, ctl/loco (and the sport service, /cmd_vel)
     zensim record   record a robot's samples into MCAP; replay, resim: play or re-simulate one
+    zensim scenario play a scenario file (pushes, velocities, faults on a timeline) and score the run
+    zensim course   run the standard course (flat, slope, stairs, rough, pushes) and write a score table
 
 Each sub-command takes `--help`. Settings come from `ZENSIM_*` variables and
 flags; each service's README has its table (services/*/README.md, the
@@ -45,6 +47,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("zensim.record", "record every sample of a robot into an MCAP file"),
     "replay": ("zensim.replay", "publish a recording's states again (the viewer draws the past run)"),
     "resim": ("zensim.resim", "re-simulate a recording's commands and report the divergence"),
+    "scenario": ("zensim.scenario", "play a scenario file against the running controller and score it"),
+    "course": ("zensim.course", "run the standard course against a controller and write its score table"),
 }
 
 

@@ -1,0 +1,363 @@
+"""`zensim scenario FILE`: play a scenario (zensim/scenario_file.py) against whatever controller runs the robot.
+
+Reads:  state/odom, state/sim, state/joints (sim time, fallen, torques), info/robot (joint names)
+Writes: ctl/push, ctl/band, ctl/loco, ctl/faults (queries), cmd/velocity (puts); the result (JSON) and,
+        with --record, an MCAP made by a `zensim record` process it starts and stops
+
+The scenario follows the sim's clock: time 0 is the first state it sees, and an event fires once a state
+at or past its time arrives, real time or lockstep alike (under lockstep the controller is the clock, and
+the event lands within a few of its commands: the result says when each one fired). A velocity is put
+again every 0.5 s of sim time, each good until the next velocity event or the end (so a runner that
+lags a fast lockstep controller never lets it lapse, and a scenario that dies leaves a robot that stops then).
+Before anything is sent the scenario is checked whole, and so is the robot's side: a `loco` event with no
+walking controller serving ctl/loco, or a `faults` event with a sim that does not serve ctl/faults, is
+refused with one line. The run ends at end_s, or early (said in the result) when the sim stalls for
+--stall-timeout-s of wall time, goes back in time (a reset) or restarts.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from typing import Annotated, Any, ClassVar, Final
+
+import msgspec
+import zenoh
+
+from zensim.common.entry import fail, serve
+from zensim.common.logs import setup_logging
+from zensim.common.settings import CommonSettings, ZenohSettings, settings_or_exit
+from zensim.common.wire import error_text, payload_of
+from zensim.schemas import Codec, DecodeError, JointState, Keys, Odometry, RobotInfo, SimStatus
+
+from .replay import leading_file_argument
+from .scenario_file import Band, Faults, Loco, Push, Scenario, ScenarioError, Velocity, load_scenario
+from .scenario_score import EventOutcome, ScenarioResult, Trace, result_lines, score
+
+logger = logging.getLogger("zensim.scenario")
+
+PROG = "zensim scenario"
+VELOCITY_RESEND_S: Final = 0.5
+"""A velocity is put again this often (sim time), each put good until the scenario's next velocity or its end:
+the scenario's own schedule, not the runner's pace (a lockstep controller at 10x real time outruns a loaded
+machine's runner by seconds of sim time), ends it, and a scenario that dies leaves a robot that stops then."""
+QUERY_TIMEOUT_S: Final = 5.0
+MAX_QUEUED: Final = 100_000
+SERVED_WAIT_S: Final = 3.0
+"""How long the check for a ctl/loco or ctl/faults server waits for the router's declarations."""
+
+
+class ScenarioSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Settings of `zensim scenario FILE`."""
+
+    env_prefix: ClassVar[str] = "SCENARIO"
+    file: str = ""
+    """The scenario file (TOML; the first argument)."""
+    result: str = ""
+    """Write the result here as JSON; empty: print only."""
+    record: str = ""
+    """Also record the run into this MCAP file (a `zensim record` process for the run's length)."""
+    stall_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 20.0
+    """Wall time without a new state after which the run stops (a lockstep sim whose controller stopped), s."""
+    start_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 30.0
+    """Wall time to wait for the sim to answer info/robot and send its first state, s."""
+
+
+def ctl_faults_key(keys: Keys) -> str:
+    """ctl/faults, from the topic registry once the sim serves it there; its place until then."""
+    return str(getattr(keys, "ctl_faults", f"{keys.root}/ctl/faults"))
+
+
+def zenoh_env(zenoh_settings: ZenohSettings) -> dict[str, str]:
+    """The ZENSIM_ZENOH_* variables (and ZENSIM_SECURE_DIR) that put a child process on the same network."""
+    env = {"ZENSIM_ZENOH_MODE": zenoh_settings.mode, "ZENSIM_ZENOH_CONNECT": ",".join(zenoh_settings.connect),
+           "ZENSIM_ZENOH_LISTEN": "", "ZENSIM_ZENOH_MULTICAST_SCOUTING": str(zenoh_settings.multicast_scouting).lower()}
+    if zenoh_settings.config_file:
+        env["ZENSIM_ZENOH_CONFIG_FILE"] = zenoh_settings.config_file
+    if zenoh_settings.secure_dir:
+        env["ZENSIM_SECURE_DIR"] = zenoh_settings.secure_dir
+    return env
+
+
+class Recording:
+    """A `zensim record` process for the length of a run."""
+
+    def __init__(self, output: str, robot_id: str, zenoh_settings: ZenohSettings, timeout_s: float = 30.0) -> None:
+        self.output = output
+        env = {k: v for k, v in os.environ.items() if not k.startswith("ZENSIM_")}
+        env.update(zenoh_env(zenoh_settings), ZENSIM_ROBOT_ID=robot_id, ZENSIM_LOG_LEVEL="INFO", PYTHONUNBUFFERED="1")
+        self._log = tempfile.TemporaryFile()
+        self.proc = subprocess.Popen([sys.executable, "-m", "zensim", "record", "-o", output], env=env,
+                                     stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.monotonic() + timeout_s
+        while b"recording zensim/" not in self.log():  # logged once its subscriber is declared
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self.proc.kill()
+                raise ScenarioError(f"zensim record did not start: {self.log()[-300:].decode(errors='replace').strip()}")
+            time.sleep(0.05)
+
+    def log(self) -> bytes:
+        self._log.seek(0)
+        return self._log.read()
+
+    def stop(self) -> None:
+        """Ctrl-C it (the file is finished and indexed) and wait."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self._log.close()
+
+
+class ScenarioRunner:
+    """Plays one scenario: states arrive on zenoh's threads, the caller's thread fires events and scores."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, scenario: Scenario) -> None:
+        self.session = session
+        self.keys = keys
+        self.scenario = scenario
+        self.states: queue.Queue[tuple[str, object]] = queue.Queue(MAX_QUEUED)
+        self.joint_names: tuple[str, ...] = ()
+        self._codecs: dict[str, Codec[Any]] = {keys.odom: Codec(Odometry), keys.sim_status: Codec(SimStatus), keys.joints: Codec(JointState)}
+        self._subscribers: list[zenoh.Subscriber] = []
+
+    def check_robot(self, timeout_s: float) -> None:
+        """The sim answers, and serves every verb the scenario uses; else one line saying what is missing.
+
+        Raises:
+            ScenarioError: no sim, or a verb nobody serves.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                info = self._query(self.keys.robot_info + "?format=json", None, 2.0)
+                self.joint_names = msgspec.json.decode(info, type=RobotInfo).joint_names
+                break
+            except (TimeoutError, ValueError, zenoh.ZError, msgspec.DecodeError) as exc:
+                if time.monotonic() > deadline:
+                    raise ScenarioError(f"no sim answers for robot {self.keys.robot!r} ({exc})") from None
+                time.sleep(0.2)
+        types = {type(e) for e in self.scenario.events}
+        if Loco in types and not self._served(self.keys.ctl_loco):
+            raise ScenarioError("the scenario has loco events, but no walking controller serves ctl/loco "
+                                f"for robot {self.keys.robot!r} (start `zensim loco`)")
+        if Faults in types and not self._served(ctl_faults_key(self.keys)):
+            raise ScenarioError(f"the scenario has faults events, but the sim of robot {self.keys.robot!r} "
+                                "does not serve ctl/faults")
+
+    def _served(self, key: str) -> bool:
+        querier = self.session.declare_querier(key)
+        try:
+            deadline = time.monotonic() + SERVED_WAIT_S
+            # zenoh-python 1.x answers a MatchingStatus (its stubs say bool): read it either way.
+            while not bool(getattr(querier.matching_status, "matching", querier.matching_status)):
+                if time.monotonic() > deadline:
+                    return False
+                time.sleep(0.05)
+            return True
+        finally:
+            querier.undeclare()
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            self.states.put_nowait((key, self._codecs[key].decode(*payload_of(sample))))
+        except (KeyError, DecodeError, queue.Full):
+            pass  # not ours to judge: the sim counts its own; a full queue only thins a trace
+
+    def _query(self, key: str, payload: object, timeout_s: float = QUERY_TIMEOUT_S) -> bytes:
+        body = None if payload is None else json.dumps(payload)
+        for reply in self.session.get(key, payload=body, timeout=timeout_s):
+            if reply.ok is not None:
+                return reply.ok.payload.to_bytes()
+            raise ValueError(error_text(reply.err))
+        raise TimeoutError(f"no reply on {key}")
+
+    def run(self, stop: threading.Event, stall_timeout_s: float, start_timeout_s: float, recording: str = "") -> ScenarioResult:
+        """Play the scenario to its end (or until it cannot go on) and score it."""
+        self._subscribers = [self.session.declare_subscriber(k, self._on_sample) for k in self._codecs]
+        try:
+            return self._play(stop, stall_timeout_s, start_timeout_s, recording)
+        finally:
+            for subscriber in self._subscribers:
+                subscriber.undeclare()
+
+    def _play(self, stop: threading.Event, stall_timeout_s: float, start_timeout_s: float, recording: str) -> ScenarioResult:
+        trace = Trace()
+        pending = list(self.scenario.events)
+        outcomes: list[EventOutcome] = []
+        pushes: list[tuple[float, tuple[float, ...], float]] = []
+        t0: float | None = None
+        run_id = episode = ""
+        started = False
+        first_wall: float | None = None
+        velocity: Velocity | None = None
+        next_velocity_put = 0.0
+        note = ""
+        last_state = time.monotonic()
+        timeout_s = start_timeout_s
+        now = 0.0
+        while not stop.is_set():
+            try:
+                key, message = self.states.get(timeout=0.1)
+            except queue.Empty:
+                if time.monotonic() - last_state > timeout_s:
+                    note = (f"no new state for {timeout_s:g} s of wall time at {now:.2f} s: "
+                            "is a controller driving the (lockstep) sim?")
+                    break
+                continue
+            if isinstance(message, SimStatus):
+                if (run_id and message.run_id != run_id) or (episode and message.episode != episode):
+                    note = f"the sim {'restarted' if message.run_id != run_id else 'reset'} at {now:.2f} s"
+                    break
+                run_id, episode = message.run_id, message.episode
+                if t0 is None:  # a lockstep sim waiting for its first command publishes only its status
+                    t0 = message.sim_time_s
+                if message.fallen:
+                    trace.fallen(max(0.0, message.sim_time_s - t0))
+                t = message.sim_time_s - t0
+                if t < now or (t == now and started):
+                    continue  # nothing new: the states say more, and a waiting sim is not progress
+            elif isinstance(message, JointState):
+                trace.add_torques(message.tau)
+                continue
+            else:
+                assert isinstance(message, Odometry)
+                if t0 is None:
+                    t0 = message.sim_time_s
+                t = message.sim_time_s - t0
+                if trace.times and t < trace.times[-1] - 1e-9:
+                    note = f"sim time went back at {trace.times[-1]:.2f} s (a reset)"
+                    break
+                trace.add_odometry(t, message.pos, message.quat_wxyz)
+                if t < now:
+                    continue  # a status already took the clock here: the state only adds to the trace
+            last_state, timeout_s, now, started = time.monotonic(), stall_timeout_s, t, True
+            first_wall = first_wall or last_state
+            fired = self._due(pending, t, t0, outcomes, pushes, trace)
+            if fired is not None:
+                velocity, next_velocity_put = fired, t + VELOCITY_RESEND_S
+            if velocity is not None and t >= next_velocity_put:
+                self.session.put(self.keys.velocity, msgspec.json.encode(velocity.command(self._hold(velocity, t))))
+                next_velocity_put = t + VELOCITY_RESEND_S
+            if t >= self.scenario.end_s:
+                break
+        if velocity is not None:  # the scenario's command ends with it
+            self.session.put(self.keys.velocity, msgspec.json.encode(Velocity(at_s=0).command(0.0)))
+        completed = t0 is not None and now >= self.scenario.end_s
+        if stop.is_set() and not completed:
+            note = "interrupted"
+        if not trace.times:
+            trace.add_odometry(0.0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
+            note = note or "no state came"
+        wall_s = last_state - first_wall if first_wall is not None else 0.0
+        return score(trace, self.scenario.name, pushes, self.joint_names, completed, outcomes, note, recording, wall_s)
+
+    def _hold(self, velocity: Velocity, t: float) -> float:
+        """How long a velocity put at scenario time `t` holds: until the next velocity event, or the end."""
+        later = [e.at_s for e in self.scenario.events if isinstance(e, Velocity) and e.at_s > velocity.at_s]
+        return max(0.0, min(later + [self.scenario.end_s]) - t)
+
+    def _due(self, pending: list, t: float, t0: float, outcomes: list[EventOutcome],
+             pushes: list[tuple[float, tuple[float, ...], float]], trace: Trace) -> Velocity | None:
+        """Fire the events due at scenario time `t`; returns the newest velocity accepted, if one fired."""
+        velocity = None
+        while pending and pending[0].at_s <= t:
+            event = pending.pop(0)
+            outcome, applied = self._fire(event, t, t0)
+            outcomes.append(outcome)
+            if applied is not None:
+                pushes.append(applied)
+            if isinstance(event, Velocity) and outcome.ok:
+                velocity = event
+                trace.command(t, (event.vx, event.vy, event.wz))
+        return velocity
+
+    def _fire(self, event: Push | Band | Velocity | Loco | Faults, t: float,
+              t0: float) -> tuple[EventOutcome, tuple[float, tuple[float, ...], float] | None]:
+        """Send one event; a refusal is reported in the result, and the run goes on."""
+        kind = event.__struct_config__.tag
+        applied = None
+        try:
+            match event:
+                case Velocity():
+                    self.session.put(self.keys.velocity, msgspec.json.encode(event.command(self._hold(event, t))))
+                    reply: dict = {"ok": True}
+                case Push():
+                    reply = json.loads(self._query(self.keys.ctl_push, msgspec.to_builtins(event.request())))
+                    push = reply.get("push") or {}
+                    if reply.get("ok"):
+                        applied = (float(push["start_s"]) - t0, tuple(push["force_n"]), float(push["duration_s"]))
+                case Band():
+                    reply = json.loads(self._query(self.keys.ctl_band, msgspec.to_builtins(event.request())))
+                case Loco():
+                    reply = json.loads(self._query(self.keys.ctl_loco, {"verb": event.verb}))
+                case Faults():
+                    reply = json.loads(self._query(ctl_faults_key(self.keys), event.request))
+        except (TimeoutError, ValueError, KeyError, TypeError, zenoh.ZError) as exc:
+            reply = {"ok": False, "error": str(exc)[:240]}
+        ok = bool(reply.get("ok"))
+        if not ok:
+            logger.warning("%s at %.2f s refused: %s", kind, event.at_s, reply.get("error"))
+        return EventOutcome(type=str(kind), at_s=event.at_s, fired_s=round(t, 4), ok=ok,
+                            error=None if ok else str(reply.get("error"))[:240]), applied
+
+
+def play(session: zenoh.Session, settings: ScenarioSettings, stop: threading.Event, scenario: Scenario,
+         keys: Keys | None = None) -> ScenarioResult:
+    """Check the robot's side, start the recorder if asked, play, stop the recorder.
+
+    Raises:
+        ScenarioError: the robot cannot play this scenario (one line).
+    """
+    runner = ScenarioRunner(session, keys or Keys(settings.robot_id), scenario)
+    runner.check_robot(settings.start_timeout_s)
+    recorder = Recording(settings.record, settings.robot_id, settings.zenoh) if settings.record else None
+    try:
+        return runner.run(stop, settings.stall_timeout_s, settings.start_timeout_s, settings.record)
+    finally:
+        if recorder is not None:
+            recorder.stop()
+
+
+def write_result(path: str, result: ScenarioResult) -> None:
+    with open(path, "wb") as file:
+        file.write(msgspec.json.format(msgspec.json.encode(result)))
+
+
+def run_scenario(session: zenoh.Session, settings: ScenarioSettings, stop: threading.Event, scenario: Scenario) -> int:
+    try:
+        result = play(session, settings, stop, scenario)
+    except ScenarioError as exc:
+        return fail(PROG, str(exc))
+    for line in result_lines(result):
+        print(line, flush=True)
+    if settings.result:
+        write_result(settings.result, result)
+    return 0 if result.completed else 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = leading_file_argument(sys.argv[1:] if argv is None else argv)
+    settings = settings_or_exit(ScenarioSettings, args, PROG)
+    if not settings.file:
+        return fail(PROG, "give the scenario: zensim scenario FILE [--result out.json] [--record run.mcap]")
+    setup_logging(settings.log_level)
+    try:
+        scenario = load_scenario(settings.file)
+    except ScenarioError as exc:
+        return fail(PROG, str(exc))
+    # An operator's client: it puts cmd/velocity and asks ctl/* (schemas/topics.py ROLES).
+    return serve(PROG, settings, lambda session, s, stop: run_scenario(session, s, stop, scenario), role="operator")
