@@ -8,8 +8,11 @@ off the band it drops to the floor, so the pelvis height tells whether the band 
 
 from __future__ import annotations
 
+import io
 import math
+import os
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -19,6 +22,7 @@ from zensim.schemas import Keys, Odometry, SimStatus
 
 HANGING_M = 1.0
 """The pelvis is above this while the band holds the G1 (it hangs at ~1.3 m; it stands at ~0.75 m)."""
+REPO = Path(__file__).resolve().parent.parent
 DROPPED_M = 0.6
 """The pelvis is below this once the G1 lies on the floor."""
 
@@ -110,3 +114,23 @@ def test_the_band_buttons_drop_and_lift_the_robot_push_pushes_and_a_viewer_page_
     assert reply["push"]["force_n"] == pytest.approx(list(pushed.last_push.force_n))
     browser.wait("document.getElementById('pushes').textContent.startsWith('1 applied')", 10, "the push counted")
     assert "Traceback" not in viz.log()
+    if os.environ.get("ZENSIM_SAVE_SCREENSHOT"):
+        save_band_screenshot(browser)
+
+
+def save_band_screenshot(browser: Browser) -> None:
+    """docs/band_panel.png: the hanging robot and the band panel, small enough for the README."""
+    from PIL import Image
+
+    browser.eval("document.getElementById('band').scrollIntoView({block: 'center'})")
+    # The default camera frames a standing robot: look at the hanging one, from a little farther.
+    browser.eval("(() => { zensim.follow = false; const p = zensim.linkPosition('robot', 'pelvis'), v = zensim.viewer;"
+                 " v.controls.target.set(p[0], p[2] - 0.3, -p[1]); v.camera.position.set(p[0] + 2.4, p[2] + 0.2, -p[1] + 1.6);"
+                 " v.controls.update(); v.set_dirty(); })()")
+    frames = browser.eval("zensim.framesApplied")
+    browser.wait(f"zensim.framesApplied > {frames + 3}", 30, "more frames drawn")
+    with Image.open(io.BytesIO(browser.screenshot())) as shot:
+        view = shot.convert("RGB")
+        view.thumbnail((900, 900))
+        view = view.quantize(colors=256)
+        view.save(REPO / "docs" / "band_panel.png", optimize=True)
