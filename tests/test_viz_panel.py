@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from zensim.schemas import JointTargets
+from zensim.schemas import JointTargets, PushRequest
 from zensim.viz import panel
 
 LIMITS = panel.JointLimits(("knee", "elbow"), (-1.0, -2.0), (1.0, 2.0))
@@ -18,6 +18,16 @@ def test_each_message_type_becomes_its_command() -> None:
     assert panel.parse_client_message({"type": "ctl", "verb": "pause"}, LIMITS) == panel.Ctl("pause")
     assert panel.parse_client_message({"type": "mode", "mode": "fixed"}, None) == panel.Ctl("mode", "fixed")
     assert panel.parse_client_message({"type": "plot", "joints": ["knee"]}, LIMITS) == panel.PlotRequest(("knee",))
+    assert panel.parse_client_message({"type": "band", "verb": "lower"}, None) == panel.Band("lower")
+    push = panel.parse_client_message({"type": "push", "direction": "left"}, None)
+    assert isinstance(push, panel.Push) and push.request == PushRequest(
+        direction=(0.0, 1.0, 0.0), magnitude_n=panel.PUSH_MAGNITUDE_N, duration_s=panel.PUSH_DURATION_S)
+
+
+@pytest.mark.parametrize("data", [{"type": "band", "verb": "on"}, {"type": "push", "direction": "forward"}])
+def test_a_watching_page_may_not_use_the_band_or_push(data: dict) -> None:
+    with pytest.raises(panel.PanelError, match="may watch, not drive"):
+        panel.parse_client_message(data, LIMITS, may_drive=False)
 
 
 @pytest.mark.parametrize("data", [
@@ -35,6 +45,13 @@ def test_each_message_type_becomes_its_command() -> None:
     {"type": "targets", "names": ["tail"], "q": [0.1]},              # unknown joint
     {"type": "targets", "names": [], "q": []},
     {"type": "plot", "joints": ["knee"] * 7},
+    {"type": "band", "verb": "snap"},
+    {"type": "band", "verb": "on", "length_m": 0.5},                 # the page's buttons send verbs only
+    {"type": "push", "direction": "up"},
+    {"type": "push", "direction": "forward", "magnitude_n": math.nan},
+    {"type": "push", "direction": "forward", "magnitude_n": -80},
+    {"type": "push", "direction": "forward", "duration_s": 60},      # a shove, not a constant force
+    {"type": "push", "direction": [1, 0, 0]},
 ])
 def test_anything_else_is_refused_with_a_reason(data: object) -> None:
     with pytest.raises(panel.PanelError) as info:

@@ -15,12 +15,19 @@ from typing import Any, Final, Literal
 
 import msgspec
 
-from zensim.schemas import JointTargets, Mode, RemoteState, VelocityCommand, bounded, short_repr
-from zensim.schemas.messages import RemoteButton
+from zensim.schemas import JointTargets, Mode, PushRequest, RemoteState, VelocityCommand, bounded, short_repr
+from zensim.schemas.messages import BandVerb, RemoteButton
 
 from .drive import PAGE_TIMEOUT_S, Drive
 
 MAX_PLOT_JOINTS: Final = 6
+PUSH_DIRECTIONS: Final = {"forward": (1.0, 0.0, 0.0), "back": (-1.0, 0.0, 0.0), "left": (0.0, 1.0, 0.0),
+                          "right": (0.0, -1.0, 0.0)}
+"""The Push button's directions, in the robot's heading frame (x forward, y left; the service turns them
+into the world frame by the robot's yaw when it pushes)."""
+PUSH_MAGNITUDE_N: Final = 80.0
+"""The Push button's default force: a shove a standing G1 (35 kg) feels and a walking policy should catch."""
+PUSH_DURATION_S: Final = 0.2
 
 
 class PanelError(ValueError):
@@ -78,8 +85,23 @@ class PageLoco(msgspec.Struct, tag="loco", forbid_unknown_fields=True):
     verb: Literal["walk", "damp", "sit", "stand_up"]
 
 
-PageMessage = PageTargets | PageCtl | PageMode | PagePlot | PageSelect | PageDrive | PageLoco
-DRIVING: Final = (PageTargets, PageCtl, PageMode, PageDrive, PageLoco)
+class PageBand(msgspec.Struct, tag="band", forbid_unknown_fields=True):
+    """The band buttons: `{"type": "band", "verb": "lower"}` (ctl/band)."""
+
+    verb: BandVerb
+
+
+class PagePush(msgspec.Struct, tag="push", forbid_unknown_fields=True):
+    """The Push button: `{"type": "push", "direction": "forward"}` (ctl/push on the base link); the force and
+    its duration may be given, within the schema's bounds (the sim bounds the force by the robot's weight)."""
+
+    direction: Literal["forward", "back", "left", "right"]
+    magnitude_n: float = PUSH_MAGNITUDE_N
+    duration_s: float = PUSH_DURATION_S
+
+
+PageMessage = PageTargets | PageCtl | PageMode | PagePlot | PageSelect | PageDrive | PageLoco | PageBand | PagePush
+DRIVING: Final = (PageTargets, PageCtl, PageMode, PageDrive, PageLoco, PageBand, PagePush)
 """What moves the robot or the sim: refused from a page that may only watch (a viewer's token)."""
 PAGE_CTL_VERBS: Final = ("reset", "pause", "resume", "step")
 
@@ -103,6 +125,25 @@ class Loco:
     """A walking verb for the page's robot (ctl/loco)."""
 
     verb: str
+
+
+@dataclass(frozen=True)
+class Band:
+    """A band verb for the page's robot (ctl/band)."""
+
+    verb: str
+
+
+@dataclass(frozen=True)
+class Push:
+    """A push of the page's robot's base (ctl/push); its direction in the robot's heading frame."""
+
+    request: PushRequest
+    """What to send, its `direction` still in the heading frame (x forward, y left)."""
+
+    @property
+    def verb(self) -> str:
+        return "push"
 
 
 @dataclass(frozen=True)
@@ -134,7 +175,7 @@ class JointLimits:
             raise PanelError("a joint is named twice")
 
 
-Command = JointTargets | Ctl | PlotRequest | Select | Drive | Loco
+Command = JointTargets | Ctl | PlotRequest | Select | Drive | Loco | Band | Push
 
 
 def parse_client_message(data: Any, limits: JointLimits | None, may_drive: bool = True) -> Command:
@@ -147,7 +188,8 @@ def parse_client_message(data: Any, limits: JointLimits | None, may_drive: bool 
 
     Returns:
         JointTargets for `targets`, Ctl for `ctl` and `mode`, PlotRequest for `plot`, Select for `select`
-        (the service checks that it names a robot it shows), Drive for `drive`, Loco for `loco`.
+        (the service checks that it names a robot it shows), Drive for `drive`, Loco for `loco`, Band for
+        `band`, Push for `push`.
 
     Raises:
         PanelError: anything malformed, unknown or out of place, or driving from a page that may only watch.
@@ -195,4 +237,12 @@ def parse_client_message(data: Any, limits: JointLimits | None, may_drive: bool 
                 raise PanelError(bounded(f"refused drive: {exc}")) from None
         case PageLoco(verb=verb):
             return Loco(verb=verb)
+        case PageBand(verb=verb):
+            return Band(verb=verb)
+        case PagePush(direction=direction, magnitude_n=magnitude_n, duration_s=duration_s):
+            try:  # finite, > 0, at most 10 s: the schema's own checks
+                return Push(PushRequest(direction=PUSH_DIRECTIONS[direction], magnitude_n=magnitude_n,
+                                        duration_s=duration_s))
+            except ValueError as exc:
+                raise PanelError(bounded(f"refused push: {exc}")) from None
     raise PanelError("unknown message")  # unreachable: the union is closed

@@ -22,6 +22,7 @@ Writes (under the selected robot's `zensim/{robot}/`):
     zensim/{world}/world/pause, world/resume, world/step (gets, with --world): the pause, resume and step
         buttons (a world's robots share one clock: a robot's own ctl/pause etc. refuse).
     ctl/loco (get): the drive panel's Stand and Damp buttons, a gamepad's A and B.
+    ctl/band, ctl/push (gets): the band panel's On, Lower, Raise, Off and Push buttons.
     alive/viz (liveliness token, one per robot shown).
 
 Threads: the tornado loop (main thread) owns the hub, the web server and what is shown;
@@ -33,6 +34,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -53,6 +55,7 @@ from zensim.robots.description import RobotModelError, load_description, parse_u
 from zensim.robots.mesh_files import resolve_mesh
 from zensim.schemas import topics
 from zensim.schemas import (
+    BandRequest,
     Codec,
     CtlReply,
     JointTargets,
@@ -84,7 +87,7 @@ from .web import Client, Hub, make_app
 logger = logging.getLogger(__name__)
 WORLD_CLOCK_VERBS = ("pause", "resume", "step")
 """The buttons that act on a world's one clock: under `--world` they are the world's verbs."""
-ctl_logs = {verb: RateLimitedLog(logger) for verb in ("reset", "pause", "resume", "step", "mode", "loco")}
+ctl_logs = {verb: RateLimitedLog(logger) for verb in ("reset", "pause", "resume", "step", "mode", "loco", "band", "push")}
 """The line per control request a page sends, one limiter per verb: bounded, a page may send many."""
 shed_log = RateLimitedLog(logger, 10.0)
 """The line when pages drive a robot faster than drive.PUTS_PER_S: every 10 s at most, with the counts."""
@@ -429,16 +432,19 @@ class VizService:
                 self.plot_subs.pop(client, None)
             return
         feed = self._feed_of(client)
+        # What the page's reply calls the request: "pause", "loco walk", "band lower", "push".
+        verb = f"{command.__class__.__name__.lower()} {command.verb}" if isinstance(command, (panel.Loco, panel.Band)) \
+            else command.verb
         if feed is None:
-            self.hub.refuse(client, f"ctl/{command.verb}: no robot yet ({self.description_state})")
+            self.hub.refuse(client, f"ctl/{verb}: no robot yet ({self.description_state})")
             return
         if client.ctl_in_flight:
-            self.hub.refuse(client, f"ctl/{command.verb}: this page's previous control request is still in flight")
+            self.hub.refuse(client, f"ctl/{verb}: this page's previous control request is still in flight")
             return
         client.ctl_in_flight = True
-        work = self._loco if isinstance(command, panel.Loco) else self._ctl
+        work: Any = {panel.Loco: self._loco, panel.Band: self._band, panel.Push: self._push}.get(type(command), self._ctl)
         future = self.loop.run_in_executor(self.executor, work, command, feed)
-        future.add_done_callback(lambda f: self._ctl_done(client, command.verb, f))
+        future.add_done_callback(lambda f: self._ctl_done(client, verb, f))
 
     def _ctl_done(self, client: Client, verb: str, future: Any) -> None:
         client.ctl_in_flight = False
@@ -457,10 +463,30 @@ class VizService:
             "resume": ResumeRequest(),
             "step": StepRequest(n=1),
         }.get(command.verb) or ModeRequest(mode=command.mode)  # type: ignore[arg-type]
-        out: dict[str, Any] = {"type": "ctl_reply", "verb": command.verb}
         key = feed.keys.ctl(command.verb)
         if self.world is not None and command.verb in WORLD_CLOCK_VERBS:  # every robot's clock: the world's verb
             key = getattr(Keys(self.world), f"world_{command.verb}")
+        return self._ctl_get(feed, key, request, command.verb)
+
+    def _band(self, command: panel.Band, feed: RobotFeed) -> dict:
+        """Executor thread: one ctl/band get (a band button) to `feed`'s robot."""
+        return self._ctl_get(feed, feed.keys.ctl_band, BandRequest(verb=command.verb),  # type: ignore[arg-type]
+                             "band", f"band {command.verb}")
+
+    def _push(self, command: panel.Push, feed: RobotFeed) -> dict:
+        """Executor thread: one ctl/push get (the Push button) to `feed`'s robot, its direction turned from the
+        robot's heading frame into the world frame by the robot's yaw (state/odom; none yet: the world frame)."""
+        odom, _ = feed.odom.item
+        x, y, z = command.request.direction
+        if odom is not None:
+            yaw = _yaw(odom.quat_wxyz)
+            x, y = x * math.cos(yaw) - y * math.sin(yaw), x * math.sin(yaw) + y * math.cos(yaw)
+        request = msgspec.structs.replace(command.request, direction=(x, y, z))
+        return self._ctl_get(feed, feed.keys.ctl_push, request, "push")
+
+    def _ctl_get(self, feed: RobotFeed, key: str, request: Any, log_verb: str, verb: str | None = None) -> dict:
+        """Executor thread: one ctl get answered by a CtlReply; the page's reply as a dict (`verb` names it)."""
+        out: dict[str, Any] = {"type": "ctl_reply", "verb": verb or log_verb}
         try:
             raw = self._get_bytes(key, Codec(type(request)).encode(request), STATE_CAP_BYTES)
             reply = self._codecs[CtlReply].decode(raw)
@@ -469,7 +495,7 @@ class VizService:
             return out
         out.update(_bounded_texts(msgspec.to_builtins(reply)))
         out["type"] = "ctl_reply"
-        ctl_logs[command.verb].info("%s%s -> ok=%s %s", feed.label, key.split("/", 2)[2], reply.ok, reply.error or "")
+        ctl_logs[log_verb].info("%s%s -> ok=%s %s", feed.label, key.split("/", 2)[2], reply.ok, reply.error or "")
         return out
 
     @staticmethod
@@ -506,6 +532,12 @@ def _loco_summary(status: LocoStatus) -> dict[str, Any]:
     return {"fsm_id": status.fsm_id, "active": status.active, "walking": status.walking, "stepping": status.stepping,
             "commanded": list(status.commanded), "achieved": list(status.achieved),
             "velocity_limits": list(status.velocity_limits), "seq": status.seq}
+
+
+def _yaw(quat_wxyz: tuple[float, ...]) -> float:
+    """The heading (rotation about the world's z) of an orientation, rad."""
+    w, x, y, z = quat_wxyz
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def _bounded_texts(fields: dict[str, Any]) -> dict[str, Any]:

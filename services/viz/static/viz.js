@@ -247,6 +247,7 @@ function onStatus(msg) {
   }
   if (sim) onRtf(sim.rtf);
   onLoco(msg.loco, msg.drive);
+  onDisturbances(sim);
   const shown = selectedRobot() || state.robot;
   $("description").textContent = msg.description === "ok" ? (shown ? shown.source : "") : msg.description;
   if (msg.targets) {
@@ -404,7 +405,7 @@ $("btn-plot").addEventListener("click", () => setPlotting(!plot.on));
 function onHello(msg) {
   state.role = msg.role;
   const watching = msg.role !== "operator";
-  for (const id of ["controls", "drive-buttons", "drive-keys"]) $(id).hidden = watching;
+  for (const id of ["controls", "drive-buttons", "drive-keys", "band-buttons", "push-controls"]) $(id).hidden = watching;
   $("watch-only").hidden = !watching;
   for (const s of sliders.values()) s.input.disabled = watching;
 }
@@ -521,6 +522,21 @@ setInterval(pollDrive, GAMEPAD_POLL_MS);
 
 $("btn-stand").addEventListener("click", () => send({ type: "loco", verb: "walk" }));
 $("btn-damp").addEventListener("click", () => send({ type: "loco", verb: "damp" }));
+
+// --- disturbances: the elastic band (ctl/band) and a push (ctl/push), shown from state/sim -----------
+for (const button of document.querySelectorAll("[data-band]")) {
+  button.addEventListener("click", () => send({ type: "band", verb: button.dataset.band }));
+}
+$("btn-push").addEventListener("click", () => send({ type: "push", direction: $("push-direction").value }));
+
+function onDisturbances(sim) {
+  const band = sim ? sim.band : null;   // state/sim carries the band only while it holds the robot
+  $("band-state").textContent = !sim ? "–" : band ? `on, length ${band.length_m.toFixed(2)} m` : "off";
+  $("band-state").title = band && band.force_n.length ?
+    `pull ${Math.hypot(...band.force_n).toFixed(0)} N; anchor ${band.anchor.map((v) => v.toFixed(2)).join(", ")} m` : "";
+  const acting = sim && sim.pushes ? sim.pushes.length : 0;
+  $("pushes").textContent = sim ? `${sim.pushes_applied || 0} applied${acting ? `, ${acting} acting` : ""}` : "–";
+}
 
 const FSM_NAMES = { 0: "zero torque", 1: "damp", 3: "sit", 500: "walk", 702: "stand up", 706: "stand up" };
 
