@@ -10,9 +10,12 @@ holding its default pose on its gains, settled for 1 s, then given the case's fa
             the model once (services/sim/faults.py), nothing per step
   sensors   an encoder offset, IMU noise and bias, joint q and dq noise: added at each state read
   all       both
+  link      a command delay of 10 steps (ctl/faults' link): each command is held in flight for 10 steps, and a
+            lockstep advance runs its 10 steps one at a time (a command lands mid-advance)
 
 Every round times, from the same settled state and with the cases interleaved (the machine's load falls on
-all alike), `--steps` steps two ways and the state reads of them:
+all alike), `--steps` steps two ways and the state reads of them; every case is sent the held pose as a new
+command every 10 steps (a 100 Hz controller, as the course's lockstep advances are), timed with the steps:
 
   step      World.step(1) per step: the real-time loop
   advance   World.step(10, held=True) per lockstep advance (MuJoCo runs the 10 steps in one call)
@@ -32,12 +35,15 @@ import time
 import mujoco
 
 from zensim.robots import robot_files
-from zensim.schemas import FaultsRequest, JointFault, MotorCommand, SensorFaults
+from zensim.schemas import FaultsRequest, JointFault, LinkFaults, MotorCommand, SensorFaults
 from zensim.sim.physics import Limits
 from zensim.sim.world import World
 
 SETTLE_S = 1.0
-CASES = ("none", "motors", "sensors", "all")
+CASES = ("none", "motors", "sensors", "all", "link")
+COMMAND_EVERY = 10
+"""Steps between two commands (20 ms: a 100 Hz controller; a lockstep advance of the course)."""
+LINK = LinkFaults(command_delay_steps=10)
 MOTORS = (JointFault(joint="left_knee_joint", torque_scale=0.9), JointFault(joint="left_elbow_joint", locked=True),
           JointFault(joint="left_wrist_roll_joint", limp=True))
 OFFSET = (JointFault(joint="right_knee_joint", encoder_offset_rad=0.02),)
@@ -59,9 +65,10 @@ def inject(world: World, case: str) -> None:
     """Put the case's faults on (from the settled state)."""
     joints = (MOTORS if case in ("motors", "all") else ()) + (OFFSET if case in ("sensors", "all") else ())
     sensors = SENSORS if case in ("sensors", "all") else None
+    link = LINK if case == "link" else None
     sim = world.robots[0]
-    sim.faults.request(FaultsRequest(verb="set", joints=joints, sensors=sensors, seed=1) if joints or sensors
-                       else FaultsRequest(verb="clear"))
+    sim.faults.request(FaultsRequest(verb="set", joints=joints, sensors=sensors, seed=1, link=link)
+                       if joints or sensors or link else FaultsRequest(verb="clear"))
     sim.faults_changed()
 
 
@@ -79,13 +86,18 @@ def main() -> int:
             for case, (world, snapshot) in cases.items():
                 mujoco.mj_copyData(world.data, world.model, snapshot)
                 inject(world, case)
+                sim = world.robots[0]
+                hold = MotorCommand(q=sim.robot.default_q.tolist())
                 start = time.thread_time()
                 if how == "step":
-                    for _ in range(args.steps):
+                    for k in range(args.steps):
+                        if k % COMMAND_EVERY == 0:
+                            sim.accept_command(hold)
                         world.step(1)
                 elif how == "advance":
-                    for _ in range(args.steps // 10):
-                        world.step(10, held=True)
+                    for _ in range(args.steps // COMMAND_EVERY):
+                        sim.accept_command(hold)
+                        world.step(COMMAND_EVERY, held=True)
                 else:
                     for k in range(reads):
                         world.reader.read(world.data, [k])

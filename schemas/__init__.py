@@ -17,6 +17,7 @@ from .messages import (
     FaultsRequest,
     FaultsState,
     JointFault,
+    LinkFaults,
     SensorFaults,
     PushRequest,
     PushState,
@@ -68,5 +69,5 @@ __all__ = [
     "AdvanceReply", "AppliedCommand", "Ros1Status", "Ros2Status", "RobotStates", "WorldAdvanceReply", "WorldAdvanceRequest",
     "WorldInfo", "WorldRobot", "VelocityCommand", "ArmCommand", "LocoRequest", "LocoStatus", "RemoteState",
     "BandRequest", "BandState", "PushRequest", "PushState", "Randomize", "Variant",
-    "FaultsRequest", "FaultsState", "JointFault", "SensorFaults",
+    "FaultsRequest", "FaultsState", "JointFault", "LinkFaults", "SensorFaults",
 ]

@@ -220,6 +220,9 @@ class SimStatus(Message, frozen=True, tag="sim_status", kw_only=True):
     """The faults injected now (ctl/faults); null while none is."""
     faults_set: int = 0
     """ctl/faults requests that changed the faults (set or clear), since start."""
+    dropped_commands: int = 0
+    """Commands the sim accepted (checked and sound) and then lost, as the link fault `drop_probability`
+    (ctl/faults) asked, since start: never applied (and not counted in `rejected_commands`)."""
 
 
 # --- commands -------------------------------------------------------------
@@ -581,6 +584,9 @@ MAX_Q_NOISE_RAD: Final = 0.5
 MAX_DQ_NOISE_RAD_S: Final = 10.0
 """Largest joint velocity noise std, rad/s."""
 MAX_FAULT_SEED: Final = 2**63 - 1
+MAX_DELAY_STEPS: Final = 500
+"""Longest command delay, in physics steps: 1 s of the G1's 2 ms steps, beyond any link a controller runs over
+(a delay that long is a dead link, which `drop_probability` 1 is); it bounds the commands held in flight."""
 
 
 def _check_in(field: str, value: float, low: float, high: float) -> None:
@@ -644,6 +650,26 @@ class SensorFaults(Message, frozen=True, tag="sensor_faults", kw_only=True, forb
             _check_in(f"accel_bias_m_s2[{i}]", value, -MAX_ACCEL_NOISE_M_S2, MAX_ACCEL_NOISE_M_S2)
 
 
+class LinkFaults(Message, frozen=True, tag="link_faults", kw_only=True, forbid_unknown_fields=True):
+    """What the link between a controller and the robot does to its motor commands (cmd/motors, ctl/advance):
+    it delays them by whole physics steps (sim time) and drops some.
+
+    Delayed and dropped after the sim's checks: a refused command is refused (and counted) as ever; a dropped
+    one is counted in SimStatus.dropped_commands. The link keeps the commands' order.
+    """
+
+    command_delay_steps: int = 0
+    """A command the sim accepts takes effect this many physics steps later (in sim time, real time and lockstep
+    alike), in [0, 500]; 0: at the next step, as without the fault."""
+    drop_probability: float = 0.0
+    """Each command accepted is lost with this probability, in [0, 1], drawn from the request's `seed`."""
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.command_delay_steps <= MAX_DELAY_STEPS:
+            raise ValueError(f"`command_delay_steps` must be in [0, {MAX_DELAY_STEPS}], got {self.command_delay_steps}")
+        _check_in("drop_probability", self.drop_probability, 0.0, 1.0)
+
+
 class FaultsRequest(Message, frozen=True, tag="faults_request", kw_only=True, forbid_unknown_fields=True):
     """Inject faults (ctl/faults): `set` makes the request's faults the robot's whole fault set (any set
     before is replaced: nothing of it stays), `clear` removes every fault; no verb answers the faults active.
@@ -658,11 +684,14 @@ class FaultsRequest(Message, frozen=True, tag="faults_request", kw_only=True, fo
     sensors: SensorFaults | None = None
     """set: the sensors' noise and bias; null: exact sensors."""
     seed: int = 0
-    """set: seeds the sensor noise (the same seed and commands give the same states), in [0, 2^63)."""
+    """set: seeds the sensor noise and the link's drops (the same seed and commands give the same states), in
+    [0, 2^63)."""
+    link: LinkFaults | None = None
+    """set: the link's command delay and drops; null: a perfect link."""
 
     def __post_init__(self) -> None:
-        if self.verb != "set" and (self.joints or self.sensors is not None or self.seed):
-            raise ValueError("`joints`, `sensors` and `seed` go with `verb: set`")
+        if self.verb != "set" and (self.joints or self.sensors is not None or self.seed or self.link is not None):
+            raise ValueError("`joints`, `sensors`, `link` and `seed` go with `verb: set`")
         if len(self.joints) > MAX_JOINT_FAULTS:
             raise ValueError(f"at most {MAX_JOINT_FAULTS} joint faults, got {len(self.joints)}")
         names = [fault.joint for fault in self.joints]
@@ -686,6 +715,8 @@ class FaultsState(Message, frozen=True, tag="faults_state", kw_only=True):
     """Sim time the faults were set, s."""
     locked_q: Vector = ()
     """Where each locked joint is held, rad, in the order of `joints`' locked entries."""
+    link: LinkFaults | None = None
+    """The link's command delay and drops; null: a perfect link."""
 
 
 # --- description -----------------------------------------------------------

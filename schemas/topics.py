@@ -191,7 +191,8 @@ CTL_BAND: Final = Topic("ctl/band", "queryable", "any client (an operator, a tes
                                                     "its state)", name="ctl_band")
 CTL_FAULTS: Final = Topic("ctl/faults", "queryable", "any client (an operator, a test bench)", "sim", "on demand",
                           FaultsRequest, CtlReply, note="(faults on demand: weak, locked, limp joints, encoder "
-                                                        "offsets, sensor noise and bias; `faults` says what is active)",
+                                                        "offsets, sensor noise and bias, command delay and drops; `faults` says "
+                                                        "what is active)",
                           name="ctl_faults")
 WORLD_NOTE: Final = "(a world of several robots, `zensim sim --world`: `{robot}` is the world's id)"
 WORLD_PAUSE: Final = Topic("world/pause", "queryable", "any client", "sim (a world)", "on demand", PauseRequest, CtlReply,

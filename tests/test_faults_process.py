@@ -16,7 +16,7 @@ import pytest
 from support import Latest, ctl
 from test_lockstep_process import advance, scripted_command
 from test_sim_process import robot_info, wait_alive
-from zensim.schemas import Keys, SimStatus
+from zensim.schemas import AppliedCommand, Keys, SimStatus
 
 SHOULDER, ELBOW, WRIST = "left_shoulder_pitch_joint", "left_elbow_joint", "right_elbow_joint"
 
@@ -161,6 +161,13 @@ class TestRefusals:
             ({"verb": "break"}, "verb"),
             ({"verb": "clear", "joints": [good]}, "verb: set"),
             ({"verb": "set", "joints": [{**good, "melted": True}]}, "melted"),
+            ({"verb": "set", "link": {"command_delay_steps": 501}}, "command_delay_steps"),
+            ({"verb": "set", "link": {"command_delay_steps": -1}}, "command_delay_steps"),
+            ({"verb": "set", "link": {"command_delay_steps": 2.5}}, "command_delay_steps"),
+            ({"verb": "set", "link": {"command_delay_steps": float("nan")}}, ""),  # JSON has no NaN
+            ({"verb": "set", "link": {"drop_probability": 1.5}}, "drop_probability"),
+            ({"verb": "set", "joints": [good], "link": {"drop_probability": -0.1}}, "drop_probability"),
+            ({"verb": "clear", "link": {"command_delay_steps": 3}}, "verb: set"),
         ]
         for payload, why in bad:
             reply = ctl(zsession, keys.ctl("faults"), payload)
@@ -175,3 +182,76 @@ class TestRefusals:
         assert reply["ok"] is True and reply["faults"]["joints"][0]["limp"] is True
         assert ctl(zsession, keys.ctl("faults"))["faults"]["joints"][0]["joint"] == ELBOW, "no verb: the state"
         status.wait(lambda s: s.faults is not None and s.faults_set == 1, what="the good request")
+
+
+
+def elbow_torques(session, keys: Keys, info: dict, taus: list[float]) -> list[float]:
+    """Advance once per torque in `taus` (zero gains, the torque fed forward on the elbow alone); the elbow's
+    torque in each state replied: exactly the commanded torque the motor had during that step."""
+    elbow = info["joint_names"].index(ELBOW)
+    n = len(info["joint_names"])
+    seen = []
+    for tau in taus:
+        reply = advance(session, keys, {**command(info, {ELBOW: tau}), "kp": [0.0] * n, "kd": [0.0] * n})
+        assert reply["ok"], reply
+        seen.append(reply["joints"]["tau"][elbow])
+    return seen
+
+
+class TestLinkFaults:
+    """One physics step per advance (--lockstep-steps 1): each state replied is one step after the last."""
+
+    def test_a_command_delay_of_k_steps_shows_exactly_k_states_later_and_loses_no_command(
+            self, start_service, zsession, robot_id) -> None:
+        keys = Keys(robot_id)
+        applied = Latest(zsession, keys.applied, AppliedCommand)
+        applied.keep_history = True
+        start_service("sim", "--clock", "lockstep", "--lockstep-steps", "1", "--mode", "fixed")
+        wait_alive(zsession, keys)
+        info = robot_info(zsession, keys)
+        pulse = [0.0] * 4 + [2.0, 1.0] + [0.0] * 8  # two one-step pulses: each must land, at its own step
+        assert elbow_torques(zsession, keys, info, pulse) == pytest.approx(pulse, abs=1e-9), "k = 0: at once"
+        for k in (1, 5):
+            reply = ctl(zsession, keys.ctl("faults"), {"verb": "set", "link": {"command_delay_steps": k}})
+            assert reply["ok"] is True and reply["faults"]["link"]["command_delay_steps"] == k, reply
+            seen = elbow_torques(zsession, keys, info, pulse)
+            assert seen == pytest.approx([0.0] * k + pulse[:-k], abs=1e-9), f"delay {k}: the pulses {k} states later"
+        # state/applied records each command as sent, at the sim time it was sent (a recording holds what the
+        # controller did; the delay is the sim's fault, not the record's).
+        applied.wait(lambda a: a.seq == 3 * len(pulse), what="every command on state/applied")
+        elbow = info["joint_names"].index(ELBOW)
+        last = applied.history[-len(pulse):]
+        assert [a.command.tau[elbow] for a in last] == pulse
+        assert np.diff([a.sim_time_s for a in last]) == pytest.approx([0.002] * (len(pulse) - 1), abs=1e-9)
+        assert ctl(zsession, keys.ctl("faults"), {"verb": "clear"})["faults"] is None
+        # The 5 commands still in flight land first (the link keeps order), then each at once again.
+        assert elbow_torques(zsession, keys, info, [0.0] * 5) == [0.0] * 5
+        assert elbow_torques(zsession, keys, info, pulse) == pytest.approx(pulse, abs=1e-9), "cleared: at once again"
+
+    def test_dropped_commands_never_apply_are_counted_and_the_seed_picks_which(
+            self, start_service, zsession, robot_id) -> None:
+        keys = Keys(robot_id)
+        status = Latest(zsession, keys.sim_status, SimStatus)
+        start_service("sim", "--clock", "lockstep", "--lockstep-steps", "1", "--mode", "fixed")
+        wait_alive(zsession, keys)
+        info = robot_info(zsession, keys)
+        assert ctl(zsession, keys.ctl("faults"), {"verb": "set", "link": {"drop_probability": 1}})["ok"]
+        assert elbow_torques(zsession, keys, info, [2.0] * 20) == [0.0] * 20, "a dead link: nothing applies"
+        status.wait(lambda s: s.dropped_commands == 20 and s.rejected_commands == 0, what="20 drops counted")
+
+        # Every command's torque differs: a state shows the command's own torque when it applied, the last one's
+        # when it was dropped.
+        taus = [0.01 * (i + 1) for i in range(60)]
+
+        def delivered(seed: int) -> list[int]:
+            assert ctl(zsession, keys.ctl("faults"), {"verb": "set", "link": {"drop_probability": 0.5},
+                                                      "seed": seed})["ok"]
+            seen = elbow_torques(zsession, keys, info, taus)
+            return [i for i, (tau, got) in enumerate(zip(taus, seen)) if got == pytest.approx(tau, abs=1e-9)]
+
+        first, again, other = delivered(7), delivered(7), delivered(8)
+        assert first == again, "one seed, the same commands dropped"
+        assert first != other, "another seed, other drops"
+        assert 10 < len(first) < 50, len(first)
+        dropped = 20 + sum(len(taus) - len(run) for run in (first, again, other))
+        status.wait(lambda s: s.dropped_commands == dropped, what=f"{dropped} drops counted")

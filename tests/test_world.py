@@ -9,7 +9,7 @@ import pytest
 
 from support import TWO_JOINT_ARM
 from zensim.common.session import StartupError
-from zensim.schemas import MotorCommand
+from zensim.schemas import FaultsRequest, LinkFaults, MotorCommand
 from zensim.sim.mjdata import read_base, read_imu
 from zensim.sim.service import load_world
 from zensim.sim.settings import SimSettings
@@ -145,4 +145,28 @@ def test_held_targets_step_the_world_to_the_bit_as_step_by_step(tmp_path: Path) 
     one, two = (w.data for w in worlds)
     assert one.ncon > 0 and one.time == two.time
     for field in ("qpos", "qvel", "qacc", "sensordata", "qfrc_actuator"):
+        assert np.array_equal(getattr(one, field), getattr(two, field)), field
+
+
+def test_a_delayed_command_lands_mid_advance_at_its_step_to_the_bit(tmp_path: Path) -> None:
+    """A command delay of 3 steps (ctl/faults' link) on robot a, advances of 10 held steps: each command lands
+    at step 3 of its advance, exactly as if it had been sent then (the held steps then run one at a time);
+    robot b, without the fault, is untouched by it."""
+    delayed, sent_late = (make_world(tmp_path, THREE) for _ in range(2))
+    sim = delayed.sims["a"]
+    sim.faults.request(FaultsRequest(verb="set", link=LinkFaults(command_delay_steps=3)))
+    sim.faults_changed()
+    for advance in range(20):
+        a_changes = {"left_elbow_joint": 0.1 * advance, "waist_pitch_joint": 0.4}
+        b_changes = {"left_shoulder_pitch_joint": -0.05 * advance}
+        hold(delayed, "a", a_changes)
+        hold(delayed, "b", b_changes)
+        delayed.step(10, held=True)
+        hold(sent_late, "b", b_changes)
+        sent_late.step(3)
+        hold(sent_late, "a", a_changes)
+        sent_late.step(7)
+    one, two = delayed.data, sent_late.data
+    assert one.time == two.time
+    for field in ("qpos", "qvel", "qacc", "qfrc_actuator"):
         assert np.array_equal(getattr(one, field), getattr(two, field)), field

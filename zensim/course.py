@@ -6,8 +6,8 @@ controller, on a private `zensim router`. Writes course.md and course.json (and,
 per run) into --output-dir.
 
 Items: flat ground, a slope up, stairs up, stairs down, rough ground, a push from each of four sides at
-rising force (40, 80, 120 N for 0.2 s) while walking, and three that need the sim's ctl/faults (a weak
-left knee, IMU noise, encoder noise): without it their rows say the sim does not serve it.
+rising force (40, 80, 120 N for 0.2 s) while walking, and four that need the sim's ctl/faults (a weak
+left knee, IMU noise, encoder noise, 20 ms of command delay): without it their rows say the sim does not serve it.
 A seed moves the item's events by a fraction of a gait cycle and makes the rough ground.
 
 `--controller external` runs your controller instead: it must be running, connected to the router given
@@ -140,8 +140,10 @@ at = [2.5, 0.0]
     Item("joint_noise", "walk 0.4 m/s, encoder noise 0.01 rad and 0.2 rad/s (ctl/faults)", _flat,
          _fault({"verb": "set", "sensors": {"q_noise_std_rad": 0.01, "dq_noise_std_rad_s": 0.2}, "seed": 1}), 11.0,
          needs_faults=True),
+    # 10 of the G1's 2 ms steps: under the course's lockstep (20 ms per command) each command lands one advance late.
+    Item("command_delay", "walk 0.4 m/s, 20 ms (10 steps) of command delay (ctl/faults)", _flat,
+         _fault({"verb": "set", "link": {"command_delay_steps": 10}}), 11.0, needs_faults=True),
 )
-"""(The issue's 20 ms of command delay waits for link faults in ctl/faults: services/sim/README.md, Faults.)"""
 ITEM_NAMES: Final = tuple(item.name for item in ITEMS)
 
 
@@ -151,7 +153,7 @@ class CourseSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     env_prefix: ClassVar[str] = "COURSE"
     items: tuple[str, ...] = ()
     """Course items to run, comma-separated (default all): flat, slope, stairs_up, stairs_down, rough,
-    push_front, push_back, push_left, push_right, weak_knee, imu_noise, joint_noise."""
+    push_front, push_back, push_left, push_right, weak_knee, imu_noise, joint_noise, command_delay."""
     seeds: Annotated[int, msgspec.Meta(ge=1, le=100)] = 3
     """Seeds per item."""
     controller: Literal["loco", "external"] = "loco"

@@ -12,6 +12,8 @@ A sensor fault changes only what is reported (`observe`, on the one state reader
 an encoder offset is added to the joint's q; Gaussian noise (drawn from the request's seed, afresh for each
 state read for publishing) and a constant bias are added to the IMU's gyro and accelerometer, and noise to
 every joint's q and dq. The physics is untouched: a controller sees the fault, the world does not.
+The link's faults (command delay, dropped commands) are kept in `state` here and done by the robot's Link
+(link.py), which Simulation.faults_changed hands them to.
 
 Determinism: the noise comes from one PCG64 generator per robot, seeded at `set`, one draw of 2 x joints + 6
 standard normals (q, dq, gyro, accel) for each state read. Under lockstep, states are read only at advances and resets, so the
@@ -31,7 +33,7 @@ import mujoco
 import numpy as np
 
 from zensim.robots.builder import Robot
-from zensim.schemas import FaultsRequest, FaultsState, SensorFaults, short_repr
+from zensim.schemas import FaultsRequest, FaultsState, LinkFaults, SensorFaults, short_repr
 
 LOCK_DAMPING_N_M_S = 1e7
 """A locked joint's damping, N m s/rad: MuJoCo integrates joint damping implicitly (the implicitfast integrator),
@@ -135,8 +137,9 @@ class Faults:
             sensors = request.sensors if request.sensors != SensorFaults() else None
             self._sensing = None if sensors is None and not offset.any() else _sensing(
                 offset, sensors, np.random.Generator(np.random.PCG64(request.seed)))
+            link = request.link if request.link != LinkFaults() else None
             self.state = FaultsState(joints=request.joints, sensors=sensors, seed=request.seed,
-                                     set_at_s=float(self.data.time))
+                                     set_at_s=float(self.data.time), link=link)
         self.changes += 1
         self._write_model()
         self._rebuild_constraints()

@@ -42,6 +42,7 @@ from zensim.schemas.messages import Terrain
 
 from .disturbances import Disturbances
 from .faults import Faults
+from .link import Link
 from .mjdata import actuator_index, actuator_values, base_tilt_rad, reset, write_actuators
 from .variants import Variants
 
@@ -167,6 +168,8 @@ class Simulation:
         """Pushes and the elastic band (ctl/push, ctl/band): forces applied before each step."""
         self.faults = Faults(robot, data)
         """Motor and sensor faults (ctl/faults): in the actuators' figures and in what the states report."""
+        self.link: Link[MotorTargets] = Link()
+        """The link faults (ctl/faults `link`): accepted commands delayed or dropped on their way to the actuators."""
         self.attach(robot, data)
         self.reset()
         self.resets = 0
@@ -235,7 +238,8 @@ class Simulation:
         self.faults.limits_changed()  # a weak motor's peak is the variant's peak scaled
         reset(self.robot, self.data, q, request.base_height_m)
         with self._lock:
-            self._targets = MotorTargets.hold(self.robot, q)
+            self._targets = self._newest = MotorTargets.hold(self.robot, q)
+            self.link.empty()  # a new episode: the commands in flight are lost with the last one
             self._last_command_wall = None
         self._watchdog_on = self.watchdog_engaged()
         self.steps = 0
@@ -322,7 +326,7 @@ class Simulation:
             if robot is not self.robot:  # the model was rebuilt meanwhile
                 raise CommandError("the model changed while the command was checked; send it again")
             if whole is None:  # some joints: merged into the held command, which another command may replace
-                base = self._targets
+                base = self._newest  # the newest to arrive, in flight or applied: the link keeps their order
                 q, dq, kp_all, kd_all, tau = base.q.copy(), base.dq.copy(), base.kp.copy(), base.kd.copy(), base.tau.copy()
                 q[idx] = clipped
                 dq[idx] = 0.0 if command.dq is None else command.dq
@@ -330,7 +334,12 @@ class Simulation:
                 kd_all[idx] = kd
                 tau[idx] = 0.0 if command.tau is None else command.tau
                 whole = MotorTargets(q, dq, kp_all, kd_all, tau)  # complete before it is made: it derives from them
-            self._targets = whole
+            sent = self.link.send(whole, self.steps)
+            if sent == "dropped":  # lost on the link: never reaches the robot (nor its watchdog)
+                return n_clamped
+            self._newest = whole
+            if sent == "now":
+                self._targets = whole
             self._last_command_wall = time.monotonic()
             self._watchdog_on = False
             if n_clamped:
@@ -405,10 +414,14 @@ class Simulation:
         self._applied = targets
 
     def faults_changed(self) -> None:
-        """(physics lock held) The motor faults changed: the actuators get the held targets again, through them."""
+        """(physics lock held) The faults changed: the link takes its new faults, the actuators get the held
+        targets again, through the motor faults."""
+        state = self.faults.state
+        with self._lock:
+            self.link.set(None if state is None else state.link, 0 if state is None else state.seed)
         self._apply(self._safe if self._watchdog_on else self._targets)
 
-    def apply_targets(self, check_watchdog: bool = True) -> None:
+    def apply_targets(self, check_watchdog: bool = True, ahead: int = 0) -> None:
         """Give the actuators the current targets, when they changed since the last step (the world calls it
         before each step it runs: the actuators keep their ctrl and gains between steps, so targets are
         written only when they changed, a new command or the watchdog engaging or letting go).
@@ -416,7 +429,15 @@ class Simulation:
         `check_watchdog` False keeps the watchdog's last verdict instead of reading the clock: a world
         of many robots asks it once per state period, not once per robot and step. A command accepted
         meanwhile lets go of the watchdog at once (accept_command clears the verdict).
+
+        `ahead`: the steps the world has run since `steps` was last counted (World.step counts them after a
+        batch); a delayed command due by the step about to run takes effect now.
         """
+        if self.link.busy():
+            with self._lock:
+                due = self.link.due(self.steps + ahead)
+                if due is not None:
+                    self._targets = due
         if check_watchdog:
             self._watchdog_on = self.watchdog_engaged()
         targets = self._safe if self._watchdog_on else self._targets

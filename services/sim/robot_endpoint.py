@@ -213,6 +213,7 @@ class RobotEndpoint:
             variant=sim.variants.variant,
             faults=sim.faults.state,
             faults_set=sim.faults.changes,
+            dropped_commands=sim.link.dropped,
         ))
 
     def jumped(self, rebuilt: bool) -> None:
@@ -384,8 +385,11 @@ class RobotEndpoint:
             return self._status_reply(ok=False, error=bounded(str(exc)))
         if request.verb is not None:
             self.sim.faults_changed()
-            self.engine.request_log.info("%s: faults %s (%d joints, sensors %s)", self.keys.robot, request.verb,
-                                         len(request.joints), "noisy" if request.sensors else "exact")
+            link = request.link
+            self.engine.request_log.info("%s: faults %s (%d joints, sensors %s, link %s)", self.keys.robot, request.verb,
+                                         len(request.joints), "noisy" if request.sensors else "exact",
+                                         "perfect" if link is None else
+                                         f"delay {link.command_delay_steps} steps, drop {link.drop_probability:g}")
         return msgspec.structs.replace(self._status_reply(), faults=faults)
 
     def _status_reply(self, ok: bool = True, error: str | None = None, off_loop: bool = False) -> CtlReply:

@@ -158,16 +158,17 @@ class World:
             self._next_watchdog_check = now + WATCHDOG_CHECK_PERIOD_S
         # A push or the band is a force worked out at every step boundary: then no steps run in one call.
         disturbed = [sim.disturbances for sim in sims if sim.disturbances.active()]
-        batched = held and n > 1 and not disturbed
+        # A delayed command in flight (ctl/faults' link) lands at its own step: then no steps run in one call either.
+        batched = held and n > 1 and not disturbed and not any(sim.link.busy() for sim in sims)
         if batched:
             for sim in sims:
                 sim.apply_targets(check_watchdog)
             mujoco.mj_step2(model, data)
             mujoco.mj_step(model, data, nstep=n - 1)
             mujoco.mj_step1(model, data)
-        for _ in range(0 if batched else n):
+        for i in range(0 if batched else n):
             for sim in sims:
-                sim.apply_targets(check_watchdog)
+                sim.apply_targets(check_watchdog, i)
             check_watchdog = False
             for disturbances in disturbed:
                 disturbances.apply()
