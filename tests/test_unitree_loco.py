@@ -96,6 +96,9 @@ class Stack:
     cores stalls for up to 90 ms, and a 50 Hz walking policy whose commands land that late stumbles).
     """
 
+    OPEN: list[Stack] = []
+    """The stacks running now (the module's two fixtures)."""
+
     def __init__(self, tmp: Path, clock: str = "realtime") -> None:
         self.robot_id = "t" + os.urandom(5).hex()
         self.keys = Keys(self.robot_id)
@@ -116,6 +119,7 @@ class Stack:
         self.status.keep_history = True
         self.unitree = Latest(self.session, self.keys.unitree_status, UnitreeStatus)
         self.unitree.wait(timeout_s=90, what="the adapter's status")
+        Stack.OPEN.append(self)
         if clock == "realtime":  # under lockstep time stands still (no state) until the controller starts
             self.odom.wait(timeout_s=30, what="the sim's odometry")
 
@@ -136,6 +140,8 @@ class Stack:
         return any(s.fallen for s in self.status.history[index:])
 
     def close(self) -> None:
+        if self in Stack.OPEN:
+            Stack.OPEN.remove(self)
         self.session.close()
         self.switcher = None
         self.up.send_signal(signal.SIGINT)
@@ -170,9 +176,20 @@ G1_WEIGHT_N = 344.45
 """The bundled G1's total mass x g (tests/test_contacts_process.py reads it from the model)."""
 
 
+def drives(stack: Stack) -> bool:
+    """Whether the stack's walking controller still drives its robot (its adapter's newest status)."""
+    return stack.unitree.value.loco_active
+
+
 def fresh_start(stack: Stack) -> str:
     """The robot as after boot, whatever ran before: the controller released (the motion switcher's
     ReleaseMode, as a low-level program does it), the sim reset to its spawn squat."""
+    # The other stack idles first: under lockstep a walking controller left balancing (or damping) drives its
+    # sim flat out, two busy cores beside a realtime robot that must keep its balance by the wall clock.
+    for other in Stack.OPEN:
+        if other is not stack and other.switcher is not None:
+            other.switcher.check_and_release_mode()
+            wait_for(lambda: not drives(other), 10, "the other stack's controller released")
     if stack.switcher is None:
         stack.switcher = SdkClient(stack.domain)
     # What Unitree's low-level examples do first: CheckMode, ReleaseMode while a mode is active.

@@ -62,6 +62,7 @@ def test_lowstate_is_written_without_the_adapters_lock(start_service, router_end
             # Cyclone keeps every entity in a class-level table, so the participant (and its sockets, tied to
             # `lo`) would outlive the test inside the pytest process: delete it and its readers and writers.
             dds.participant.__del__()
+            dds.domain.__del__()  # the domain too: it owns the receive threads and their sockets
         assert dds.under_lock == 0, f"{dds.under_lock} of {dds.writes} LowState_ writes held the adapter's lock"
         assert adapter.lowstate_published() >= 19  # counted, under the lock, after each write
 
@@ -122,3 +123,4 @@ def test_an_unforeseen_error_is_counted_and_the_dds_thread_serves_on(start_servi
             thread.join(5)
             adapter.close()
             dds.participant.__del__()
+            dds.domain.__del__()  # the domain too: it owns the receive threads and their sockets

@@ -102,13 +102,13 @@ def new_low_cmd() -> LowCmd_:
 
 
 OPEN_CLIENTS: list[SdkClient] = []
-"""Clients not closed yet (conftest.py closes them after each test)."""
+"""Clients not closed yet (conftest.py closes them after each test module, and at the session's end)."""
 
 
 class SdkClient:
     """One DDS participant with the SDK's low-level channels and a motion-switcher client.
 
-    Close it (conftest.py does, after every test): Cyclone keeps every entity in a class-level table, so
+    Close it (conftest.py does, after every test module): Cyclone keeps every entity in a class-level table, so
     an unclosed participant and its sockets live as long as the pytest process, and at its exit Cyclone's
     receive thread spun on the closed sockets (30 000 `recvUC ... retcode -52` lines in a CI log).
     """
