@@ -35,14 +35,21 @@ class ZenohPublisher:
         self._gid = os.urandom(16)
         self._seq = itertools.count(1)
         self._lock = threading.Lock()  # zenoh threads of several states may publish on one topic
+        self._closed = False
 
     def put(self, payload: bytes) -> None:
+        # The put under the lock too: a publisher undeclared by the closing main thread while a state's
+        # thread puts on it raised "Already borrowed" (zensim ros2 exited 1 at a SIGTERM, once in CI).
         with self._lock:
+            if self._closed:
+                return
             seq = next(self._seq)
-        self._publisher.put(payload, attachment=attachment(seq, time.time_ns(), self._gid))
+            self._publisher.put(payload, attachment=attachment(seq, time.time_ns(), self._gid))
 
     def undeclare(self) -> None:
-        self._publisher.undeclare()
+        with self._lock:
+            self._closed = True
+            self._publisher.undeclare()
 
 
 class ZenohEdge:
