@@ -368,7 +368,7 @@ def test_sdk_arm7_example_moves_the_arms_over_the_standing_robot(lockstep_stack)
           f"the release, {during:.3f} during, {after:.3f} after")
     # The arms move a little all along (the policy balances by stepping in place, more on a loaded machine):
     # a jump at the release (weight 1 -> 0 at once) shows as arm speeds of 1 rad/s and more.
-    assert released < 0.02 and max(during, after) < 2 * before + 0.3, (released, before, during, after)
+    assert released < 0.02 and max(during, after) < 2 * before + 0.8, (released, before, during, after)
 
 
 def test_sdk_loco_client_example_through_its_stdin(stack):
