@@ -24,6 +24,7 @@ from zensim.robots.builder import Placement, Robot, build, build_world
 from zensim.schemas.messages import Mode, Terrain
 
 from .physics import MAX_BASE_RISE_M, MAX_BASE_SPEED_M_S, Limits, Simulation, broken_warning
+from .schedule import Schedule
 from .world_file import WorldFile
 from .world_states import FEW_ROBOTS, Frame, StateReader
 
@@ -67,6 +68,8 @@ class World:
             for robot_id, f, robot in zip(ids, files, robots)}
         self.robots = tuple(self.sims.values())
         """Each robot's Simulation, in order."""
+        self.schedule = Schedule()
+        """ctl requests waiting for their sim time (`at_s`): carried out by `step`, before the step that starts there."""
         self._next_watchdog_check = 0.0
         self._derive()
         mujoco.mj_forward(self.model, self.data)
@@ -135,6 +138,7 @@ class World:
         self.model, self.data = robot.model, mujoco.MjData(robot.model)
         self.mode = mode
         self.steps = 0
+        self.schedule.drop()  # time starts again at 0: what waited was the old episode's
         sim.attach(robot, self.data)
         self._derive()
 
@@ -158,8 +162,11 @@ class World:
             self._next_watchdog_check = now + WATCHDOG_CHECK_PERIOD_S
         # A push or the band is a force worked out at every step boundary: then no steps run in one call.
         disturbed = [sim.disturbances for sim in sims if sim.disturbances.active()]
-        # A delayed command in flight (ctl/faults' link) lands at its own step: then no steps run in one call either.
-        batched = held and n > 1 and not disturbed and not any(sim.link.busy() for sim in sims)
+        # A delayed command in flight (ctl/faults' link) lands at its own step, a scheduled request too: then no
+        # steps run in one call either.
+        schedule = self.schedule
+        batched = (held and n > 1 and not disturbed and schedule.next_step >= self.steps + n
+                   and not any(sim.link.busy() for sim in sims))
         if batched:
             for sim in sims:
                 sim.apply_targets(check_watchdog)
@@ -167,6 +174,9 @@ class World:
             mujoco.mj_step(model, data, nstep=n - 1)
             mujoco.mj_step1(model, data)
         for i in range(0 if batched else n):
+            if schedule.next_step <= self.steps + i:  # requests due before this step (a push, a fault): now
+                schedule.run_due(self.steps + i)
+                disturbed = [sim.disturbances for sim in sims if sim.disturbances.active()]
             for sim in sims:
                 sim.apply_targets(check_watchdog, i)
             check_watchdog = False
@@ -215,6 +225,7 @@ class World:
         """mj_resetData of the whole world: time 0, warnings cleared (robots reset next)."""
         mujoco.mj_resetData(self.model, self.data)
         self.steps = 0
+        self.schedule.drop()
         self.resets += 1
 
 
