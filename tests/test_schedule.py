@@ -16,7 +16,8 @@ from support import Latest, ctl
 from test_disturbances_process import limp
 from test_lockstep_process import advance
 from test_sim_process import robot_info, wait_alive
-from zensim.schemas import Keys, PushRequest, SimStatus
+from zensim.loco.velocities import ScheduledVelocities
+from zensim.schemas import Keys, PushRequest, SimStatus, VelocityCommand
 from zensim.schemas.messages import MAX_SCHEDULED
 from zensim.sim.schedule import NO_STEP, Schedule, ScheduleError
 
@@ -110,3 +111,18 @@ def test_lockstep_scheduled_push_and_faults_act_at_their_own_step_and_a_reset_dr
         advance(zsession, keys, limp(n))
     seen = status.wait(lambda s: s.steps == 200, what="0.4 s of the new episode")
     assert seen.band is not None and seen.band.length_m == 0.0, "the dropped band request never acted"
+
+
+def test_the_walking_controller_keeps_timed_velocities_for_their_tick_in_order_and_bounded() -> None:
+    waiting = ScheduledVelocities()
+    for at_s, vx in ((3.0, 0.3), (1.0, 0.1), (1.0, 0.2), (2.0 + 1e-12, 0.25)):
+        assert waiting.add(VelocityCommand(vx=vx, at_s=at_s))
+    assert waiting.due(0.98) == []
+    assert [c.vx for c in waiting.due(1.0)] == [0.1, 0.2], "one time: first come, first served"
+    assert [c.vx for c in waiting.due(2.0)] == [0.25], "a time read off a state is a sum of floats"
+    assert len(waiting) == 1
+    waiting.clear()
+    assert waiting.due(10.0) == []
+    for _ in range(MAX_SCHEDULED):
+        assert waiting.add(VelocityCommand(vx=0.1, at_s=5.0))
+    assert not waiting.add(VelocityCommand(vx=0.1, at_s=5.0)), "one more than the bound is not kept"
