@@ -368,7 +368,8 @@ class Engine:
                     # effect at the next step boundary (the per-step target check in World.step).
                     n = publish_every - world.steps % publish_every
                 with self.physics:
-                    world.step(n)
+                    # Sensors only for a step whose instant may be published (World.step's `sensed`).
+                    world.step(n, sensed=wall_clock_states or (world.steps + n) % publish_every == 0)
                     self.pacer.stepped(n)
                     publish_due = wall_clock_states or world.steps % publish_every == 0
                     if publish_due:
