@@ -201,6 +201,23 @@ def test_a_short_course_runs_the_reference_controller_end_to_end_and_writes_the_
     assert "flat" in done.stdout and "survived" in done.stdout, done.stdout
 
 
+def test_course_variants_run_each_seed_on_its_own_robot_and_say_which(tmp_path):
+    """`--variants true`: before each run the course resets the robot into the variant its seed draws."""
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "zensim", "course", "--items", "flat", "--seeds", "2", "--variants",
+                           "true", "--output-dir", str(out), "--log-level", "WARNING"],
+                          capture_output=True, text=True, timeout=400)
+    assert done.returncode == 0, done.stdout + done.stderr
+    runs = json.loads((out / "course.json").read_text())["runs"]
+    variants = [run["variant"] for run in runs]
+    assert [v["seed"] for v in variants] == [0, 1] and variants[0]["mass_kg"] != variants[1]["mass_kg"], variants
+    for variant in variants:
+        assert variant["mass_kg"] != variant["nominal_mass_kg"] and 0.6 <= variant["friction_scale"] <= 1.4, variant
+        assert all(0.85 <= s <= 1.0 for s in variant["motor_strength"]), variant
+    assert all(run["result"]["completed"] for run in runs), runs
+    assert f"variant 1: {variants[1]['mass_kg']:.1f} kg" in (out / "course.md").read_text()
+
+
 SQUAT_HOLDER = textwrap.dedent("""
     # A user's controller written against cmd/motors alone: hold the spawn squat with the floating gains.
     import json, sys, time, zenoh
