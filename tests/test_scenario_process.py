@@ -11,6 +11,7 @@ import math
 import subprocess
 import sys
 import textwrap
+from xml.etree import ElementTree
 from pathlib import Path
 
 import pytest
@@ -199,6 +200,10 @@ def test_a_short_course_runs_the_reference_controller_end_to_end_and_writes_the_
     assert all(p["force_n"][1] > 0 for p in pushed["pushes"]), pushed  # from the right: towards +y
     assert (out / "flat-s0.mcap").stat().st_size > 100_000 and (out / "push_right-s0.mcap").stat().st_size > 100_000
     assert "flat" in done.stdout and "survived" in done.stdout, done.stdout
+    figure = ElementTree.parse(out / "course.svg").getroot()  # the plot image: an SVG, one dot per run
+    dots = [c for c in figure.iter("{http://www.w3.org/2000/svg}circle")]
+    assert [d.find("{http://www.w3.org/2000/svg}title").text.split(":")[0] for d in dots] == ["seed 0", "seed 0"]
+    assert {t.text for t in figure.iter("{http://www.w3.org/2000/svg}text")} >= {"flat", "push_right", "1/1"}
 
 
 def test_course_variants_run_each_seed_on_its_own_robot_and_say_which(tmp_path):

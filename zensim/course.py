@@ -41,6 +41,7 @@ from zensim.common.settings import CommonSettings, ZenohSettings, settings_or_ex
 from zensim.common.wire import error_text
 from zensim.schemas import Keys, Variant
 
+from .course_plot import course_svg
 from .scenario import Recording, ScenarioRunner, ctl_faults_key, zenoh_env
 from .scenario_file import AnyEvent, Faults, Loco, Push, Scenario, ScenarioError, Velocity
 from .scenario_score import ScenarioResult
@@ -393,17 +394,12 @@ def run_course(session: zenoh.Session, settings: CourseSettings, stop: threading
     with open(os.path.join(settings.output_dir, "course.json"), "wb") as file:
         file.write(msgspec.json.format(msgspec.json.encode({"controller": settings.controller, "seeds": settings.seeds,
                                                              "wall_s": round(took, 1), "runs": rows})))
+    with open(os.path.join(settings.output_dir, "course.svg"), "w") as file:
+        file.write(course_svg(rows, f"zensim course: controller {settings.controller}, {settings.seeds} seed(s) per item"))
     print()
     print(plain(SUMMARY_HEADER, summary(rows)))
-    print(f"wrote {os.path.join(settings.output_dir, 'course.md')} and course.json "
-          "(no plot image: matplotlib is not installed)" if not _have_matplotlib() else "")
+    print(f"wrote {os.path.join(settings.output_dir, 'course.md')}, course.json and course.svg")
     return 0 if not stop.is_set() else 1
-
-
-def _have_matplotlib() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("matplotlib") is not None
 
 
 def _free_port() -> int:
