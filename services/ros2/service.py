@@ -44,6 +44,7 @@ from zensim.common.robot_info import fetch_robot
 from zensim.common.ros_rules import InputError, P3dOdometry, RobotJoints, xyzw
 from zensim.common.ros_state import StateIntake
 from zensim.common.session import StartupError
+from zensim.common.token_bucket import TokenBucket
 from zensim.common.wire import Refusals, TypedPublisher, error_text, read_payload
 from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, LocoStatus, Odometry, Ros2Status, WorldInfo, topics
 from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, INFO_CAP_BYTES, MIN_CAP_BYTES
@@ -74,27 +75,6 @@ def names_of(settings: Ros2Settings) -> Ros2Names:
                         tf=s.tf_topic, odom=s.odom_topic, imu=s.imu_topic, clock=s.clock_topic,
                         forward_command=s.forward_command_topic, trajectory=s.trajectory_topic,
                         cmd_vel=s.cmd_vel_topic)
-
-
-class TokenBucket:
-    """At most `rate_hz` takes a second on average, `burst` at once. Thread-safe."""
-
-    def __init__(self, rate_hz: float, burst: int) -> None:
-        self._rate = rate_hz
-        self._burst = float(burst)
-        self._tokens = float(burst)
-        self._last = time.monotonic()
-        self._lock = threading.Lock()
-
-    def take(self) -> bool:
-        with self._lock:
-            now = time.monotonic()
-            self._tokens = min(self._burst, self._tokens + (now - self._last) * self._rate)
-            self._last = now
-            if self._tokens >= 1.0:
-                self._tokens -= 1.0
-                return True
-            return False
 
 
 class Counters:
