@@ -19,29 +19,12 @@ Results go to stdout; docs/benchmarks.md keeps the figures.
 
 from __future__ import annotations
 
-import argparse
-import statistics
-import time
-
-import mujoco
-
-from zensim.robots import robot_files
-from zensim.schemas import BandRequest, MotorCommand, PushRequest
-from zensim.sim.physics import Limits
+from step_cases import arguments, print_table, settled, time_rounds
+from zensim.schemas import BandRequest, PushRequest
 from zensim.sim.world import World
 
-SETTLE_S = 1.0
 CASES = ("none", "push", "band", "push+band")
-
-
-def settled() -> tuple[World, mujoco.MjData]:
-    world = World.alone("bench", robot_files("g1"), "floating", Limits(5000, 500), 1e9)
-    (sim,) = world.robots
-    sim.accept_command(MotorCommand(q=sim.robot.default_q.tolist()))
-    world.step(int(SETTLE_S / world.timestep_s))
-    snapshot = mujoco.MjData(world.model)
-    mujoco.mj_copyData(snapshot, world.model, world.data)
-    return world, snapshot
+HOWS = ("step", "advance")
 
 
 def disturb(world: World, case: str) -> None:
@@ -54,35 +37,20 @@ def disturb(world: World, case: str) -> None:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--rounds", type=int, default=15)
-    args = parser.parse_args()
-    cases = {case: settled() for case in CASES}
-    times: dict[tuple[str, str], list[float]] = {(case, how): [] for case in CASES for how in ("step", "advance")}
-    for _ in range(args.rounds):
-        for how in ("step", "advance"):
-            for case, (world, snapshot) in cases.items():
-                mujoco.mj_copyData(world.data, world.model, snapshot)
-                disturb(world, case)
-                start = time.thread_time()
-                if how == "step":
-                    for _ in range(args.steps):
-                        world.step(1)
-                else:
-                    for _ in range(args.steps // 10):
-                        world.step(10, held=True)
-                times[case, how].append((time.thread_time() - start) / args.steps * 1e6)
-                assert not world.fallen(world.take([0]))[0], f"{case}: the robot fell; the case measures nothing"
+    args = arguments(__doc__)
+
+    def run(world: World, how: str) -> int:
+        if how == "step":
+            for _ in range(args.steps):
+                world.step(1)
+        else:
+            for _ in range(args.steps // 10):
+                world.step(10, held=True)
+        return args.steps
+
+    times = time_rounds({case: settled() for case in CASES}, HOWS, args.rounds, disturb, run)
     print(f"{args.rounds} rounds of {args.steps} steps; CPU us per physics step, median (ratio to none)")
-    print(f"{'case':<10} {'step':>16} {'advance':>16}")
-    for case in CASES:
-        cells = []
-        for how in ("step", "advance"):
-            median = statistics.median(times[case, how])
-            base = statistics.median(times["none", how])
-            cells.append(f"{median:7.1f} ({median / base:4.2f})")
-        print(f"{case:<10} {cells[0]:>16} {cells[1]:>16}")
+    print_table(times, CASES, HOWS)
     return 0
 
 

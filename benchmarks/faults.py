@@ -28,19 +28,12 @@ Results go to stdout; docs/benchmarks.md keeps the figures.
 
 from __future__ import annotations
 
-import argparse
-import statistics
-import time
-
-import mujoco
-
-from zensim.robots import robot_files
+from step_cases import arguments, print_table, settled, time_rounds
 from zensim.schemas import FaultsRequest, JointFault, LinkFaults, MotorCommand, SensorFaults
-from zensim.sim.physics import Limits
 from zensim.sim.world import World
 
-SETTLE_S = 1.0
 CASES = ("none", "motors", "sensors", "all", "link")
+HOWS = ("step", "advance", "read")
 COMMAND_EVERY = 10
 """Steps between two commands (20 ms: a 100 Hz controller; a lockstep advance of the course)."""
 LINK = LinkFaults(command_delay_steps=10)
@@ -49,16 +42,6 @@ MOTORS = (JointFault(joint="left_knee_joint", torque_scale=0.9), JointFault(join
 OFFSET = (JointFault(joint="right_knee_joint", encoder_offset_rad=0.02),)
 SENSORS = SensorFaults(gyro_noise_std_rad_s=0.005, gyro_bias_rad_s=(0.01, 0.0, 0.0), accel_noise_std_m_s2=0.05,
                        accel_bias_m_s2=(0.0, 0.1, 0.0), q_noise_std_rad=0.001, dq_noise_std_rad_s=0.02)
-
-
-def settled() -> tuple[World, mujoco.MjData]:
-    world = World.alone("bench", robot_files("g1"), "floating", Limits(5000, 500), 1e9)
-    (sim,) = world.robots
-    sim.accept_command(MotorCommand(q=sim.robot.default_q.tolist()))
-    world.step(int(SETTLE_S / world.timestep_s))
-    snapshot = mujoco.MjData(world.model)
-    mujoco.mj_copyData(snapshot, world.model, world.data)
-    return world, snapshot
 
 
 def inject(world: World, case: str) -> None:
@@ -73,47 +56,32 @@ def inject(world: World, case: str) -> None:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--rounds", type=int, default=15)
-    args = parser.parse_args()
-    cases = {case: settled() for case in CASES}
-    hows = ("step", "advance", "read")
-    times: dict[tuple[str, str], list[float]] = {(case, how): [] for case in CASES for how in hows}
+    args = arguments(__doc__)
+    worlds = {case: settled() for case in CASES}
+    hold = MotorCommand(q=worlds["none"][0].robots[0].robot.default_q.tolist())
     reads = args.steps // 5
-    for _ in range(args.rounds):
-        for how in hows:
-            for case, (world, snapshot) in cases.items():
-                mujoco.mj_copyData(world.data, world.model, snapshot)
-                inject(world, case)
-                sim = world.robots[0]
-                hold = MotorCommand(q=sim.robot.default_q.tolist())
-                start = time.thread_time()
-                if how == "step":
-                    for k in range(args.steps):
-                        if k % COMMAND_EVERY == 0:
-                            sim.accept_command(hold)
-                        world.step(1)
-                elif how == "advance":
-                    for _ in range(args.steps // COMMAND_EVERY):
-                        sim.accept_command(hold)
-                        world.step(COMMAND_EVERY, held=True)
-                else:
-                    for k in range(reads):
-                        world.reader.read(world.data, [k])
-                elapsed = time.thread_time() - start
-                times[case, how].append(elapsed / (reads if how == "read" else args.steps) * 1e6)
-                assert not world.fallen(world.take([0]))[0], f"{case}: the robot fell; the case measures nothing"
+
+    def run(world: World, how: str) -> int:
+        sim = world.robots[0]
+        if how == "step":
+            for k in range(args.steps):
+                if k % COMMAND_EVERY == 0:
+                    sim.accept_command(hold)
+                world.step(1)
+        elif how == "advance":
+            for _ in range(args.steps // COMMAND_EVERY):
+                sim.accept_command(hold)
+                world.step(COMMAND_EVERY, held=True)
+        else:
+            for k in range(reads):
+                world.reader.read(world.data, [k])
+            return reads
+        return args.steps
+
+    times = time_rounds(worlds, HOWS, args.rounds, inject, run)
     print(f"{args.rounds} rounds of {args.steps} steps; CPU us per physics step (read: per state), median "
           "(ratio to none)")
-    print(f"{'case':<10} {'step':>16} {'advance':>16} {'read':>16}")
-    for case in CASES:
-        cells = []
-        for how in hows:
-            median = statistics.median(times[case, how])
-            base = statistics.median(times["none", how])
-            cells.append(f"{median:7.1f} ({median / base:4.2f})")
-        print(f"{case:<10} {cells[0]:>16} {cells[1]:>16} {cells[2]:>16}")
+    print_table(times, CASES, HOWS)
     return 0
 
 

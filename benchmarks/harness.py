@@ -130,6 +130,25 @@ class Processes:
             child.stop()
 
 
+def behind_private_router(robot_id: str, prefix: str = "zensim-bench-") -> tuple[Processes, str]:
+    """A private `zensim router` on a free loopback port, up, and the Processes whose services are its clients.
+
+    The services run robot `robot_id` with multicast scouting off (no other zenoh on the machine joins in)
+    and unbuffered output (their logs are read while they run). Returns the processes (the router among
+    them: `stop_all` in a `finally` stops it too) and the router's endpoint, for a `plain_client`.
+    """
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    procs = Processes(dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_ZENOH_MULTICAST_SCOUTING="false",
+                           PYTHONUNBUFFERED="1", ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint), prefix)
+    try:
+        router = procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
+        wait_for(lambda: "router up" in router.log(), 15, "router")
+    except BaseException:
+        procs.stop_all()
+        raise
+    return procs, endpoint
+
+
 def client_config(endpoint: str) -> zenoh.Config:
     """A plain zenoh client (no zensim code) of `endpoint`, multicast off, that waits for the router."""
     conf = zenoh.Config()

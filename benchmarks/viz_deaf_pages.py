@@ -22,7 +22,7 @@ import struct
 import sys
 import time
 
-from harness import Processes, free_port, rss_mb, wait_for
+from harness import behind_private_router, free_port, rss_mb, wait_for
 
 
 def deaf_page(port: int) -> socket.socket:
@@ -84,12 +84,8 @@ def main() -> None:
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, max(soft, args.pages + 256)), hard))  # the viz inherits it
 
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     port = free_port()
-    robot = "bench" + str(random.randint(0, 10**6))
-    base = dict(os.environ, ZENSIM_ROBOT_ID=robot, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
-    procs = Processes(dict(base, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint), prefix="viz-deaf-")
-    procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
+    procs, _ = behind_private_router("bench" + str(random.randint(0, 10**6)), prefix="viz-deaf-")
     procs.zensim("sim", "--mode", "fixed")
     viz = procs.zensim("viz", "--port", str(port))
     try:

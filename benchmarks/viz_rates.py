@@ -32,7 +32,7 @@ import time
 import zenoh
 from tornado.websocket import websocket_connect
 
-from harness import Processes, cpu_s, free_port, plain_client, rss_mb, test_scaffolding, wait_for
+from harness import behind_private_router, cpu_s, free_port, plain_client, rss_mb, test_scaffolding, wait_for
 from zensim.schemas import Codec, JointState, JointTargets, Keys
 
 Browser = test_scaffolding("browser").Browser
@@ -99,17 +99,12 @@ def main() -> int:
     parser.add_argument("--soak-minutes", type=float, default=0.0, help="minutes of streaming for the memory soak")
     args = parser.parse_args()
 
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     robot_id = f"bench{os.getpid()}"
     keys = Keys(robot_id)
-    base_env = dict(os.environ, ZENSIM_ROBOT_ID=robot_id, ZENSIM_ZENOH_MULTICAST_SCOUTING="false", PYTHONUNBUFFERED="1")
-    env = dict(base_env, ZENSIM_ZENOH_MODE="client", ZENSIM_ZENOH_CONNECT=endpoint)
     port = free_port()
-    procs = Processes(env)
+    procs, endpoint = behind_private_router(robot_id)
     results: dict[str, object] = {}
     try:
-        router = procs.zensim("router", "--zenoh-listen", endpoint, "--zenoh-mode", "router", "--zenoh-connect", "")
-        wait_for(lambda: "router up" in router.log(), 15, "router")
         procs.zensim("sim", "--mode", "fixed")
         procs.zensim("bridge")
         viz = procs.zensim("viz", "--port", str(port), "--rate-hz", str(args.rate_hz))

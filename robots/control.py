@@ -27,11 +27,12 @@ class ControlConfigError(ValueError):
     """A control file that cannot be read, decoded or applied; the message names the file and field."""
 
 
-class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """Base for every table in control.toml: a typo is an error, not a silently ignored key."""
+class StrictTable(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Base for every table in a robot's TOML files (control.toml, walking.toml): a typo is an error, not a
+    silently ignored key."""
 
 
-class JointGains(_Strict, frozen=True):
+class JointGains(StrictTable, frozen=True):
     """PD gains for the joints matching `joints` (Unitree LowCmd kp/kd)."""
 
     joints: list[str]
@@ -42,7 +43,7 @@ class JointGains(_Strict, frozen=True):
     """Damping, N m s/rad."""
 
 
-class JointValue(_Strict, frozen=True):
+class JointValue(StrictTable, frozen=True):
     """A scalar for the joints matching `joints` (armature)."""
 
     joints: list[str]
@@ -51,7 +52,7 @@ class JointValue(_Strict, frozen=True):
     """The value, in the unit of the table that holds it."""
 
 
-class ModeConfig(_Strict, frozen=True):
+class ModeConfig(StrictTable, frozen=True):
     """Settings of one mode: floating (free base on the floor) or fixed (base welded in the air)."""
 
     base_height_m: Positive | None = None
@@ -62,7 +63,7 @@ class ModeConfig(_Strict, frozen=True):
     """PD gains per joint group; first match wins. Unmatched joints get gains from their effort limit."""
 
 
-class ModelConfig(_Strict, frozen=True):
+class ModelConfig(StrictTable, frozen=True):
     """Simulation settings that complete the URDF into a MuJoCo model."""
 
     base_link: str | None = None

@@ -21,38 +21,24 @@ import msgspec
 import numpy as np
 
 from . import BUNDLED_DIR, CONTROL_FILE, bundled_robots
-from .control import ControlConfigError, first_match, load_control
+# A gain group is control.toml's (JointGains): the ramps fall back on control.toml's floating gains, one list.
+from .control import ControlConfigError, JointGains, NonNegative, Positive, StrictTable, first_match, load_control
 
 WALKING_FILE: Final = "walking.toml"
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
-Positive = Annotated[float, msgspec.Meta(gt=0)]
 
 
 class WalkingConfigError(ValueError):
     """A walking.toml that cannot be read, decoded or applied; the message names the file and field."""
 
 
-class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """A typo in walking.toml is an error, not a silently ignored key."""
-
-
-class GainGroup(_Strict, frozen=True):
-    joints: list[str]
-    """Glob patterns over joint names."""
-    kp: NonNegative
-    """Stiffness, N m/rad."""
-    kd: NonNegative
-    """Damping, N m s/rad."""
-
-
-class DampGroup(_Strict, frozen=True):
+class DampGroup(StrictTable, frozen=True):
     joints: list[str]
     """Glob patterns over joint names."""
     kd: NonNegative
     """Damping, N m s/rad."""
 
 
-class PolicyConfig(_Strict, frozen=True):
+class PolicyConfig(StrictTable, frozen=True):
     weights: str
     """The policy's weights (.npz), relative to walking.toml's folder."""
     period_s: Positive
@@ -67,7 +53,7 @@ class PolicyConfig(_Strict, frozen=True):
     """Their damping while walking, N m s/rad."""
 
 
-class WalkConfig(_Strict, frozen=True):
+class WalkConfig(StrictTable, frozen=True):
     upper_kp: NonNegative
     """Stiffness of every joint outside the policy while walking (held at 0 rad), N m/rad."""
     upper_kd: NonNegative
@@ -84,16 +70,16 @@ class WalkConfig(_Strict, frozen=True):
     """Sim time of the ramp from the last step to the stance, s."""
 
 
-class RampConfig(_Strict, frozen=True):
+class RampConfig(StrictTable, frozen=True):
     squat_s: Positive
     """Sim time from wherever the robot is to the squat (the first leg of a stand-up), s."""
     stand_up_s: Positive
     """Sim time from the squat to the stance (or from anywhere to the squat), s."""
-    gains: list[GainGroup] = []
+    gains: list[JointGains] = []
     """Gains while ramping and holding a pose; first match wins, then control.toml's floating gains."""
 
 
-class WalkingFile(_Strict, frozen=True):
+class WalkingFile(StrictTable, frozen=True):
     """Everything in walking.toml."""
 
     joints: list[str]

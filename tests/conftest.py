@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from browser import Browser, chromium_binary
 from support import Service, free_port, plain_client, wait_for
 
 
@@ -51,6 +52,15 @@ def official_g1_dir() -> Path:
     if missing:
         pytest.fail(f"ZENSIM_OFFICIAL_G1={value} lacks {', '.join(map(str, missing))}")
     return folder
+
+
+@pytest.fixture
+def browser() -> Iterator[Browser]:
+    """A headless chromium page, 1280x800 (the viz's screenshots and clicks); chromium missing fails the test."""
+    if chromium_binary() is None:
+        pytest.fail("chromium is needed: apt-get install -y --no-install-recommends chromium")
+    with Browser(width=1280, height=800) as b:
+        yield b
 
 
 @pytest.fixture

@@ -11,12 +11,11 @@ from __future__ import annotations
 import io
 import math
 import os
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from browser import Browser, chromium_binary
+from browser import Browser
 from support import Latest, free_port, wait_for
 from zensim.schemas import Keys, Odometry, SimStatus
 
@@ -25,14 +24,6 @@ HANGING_M = 1.0
 REPO = Path(__file__).resolve().parent.parent
 DROPPED_M = 0.6
 """The pelvis is below this once the G1 lies on the floor."""
-
-
-@pytest.fixture
-def browser() -> Iterator[Browser]:
-    if chromium_binary() is None:
-        pytest.fail("chromium is needed: apt-get install -y --no-install-recommends chromium")
-    with Browser(width=1280, height=800) as b:
-        yield b
 
 
 def click(browser: Browser, element_id: str) -> None:

@@ -13,14 +13,14 @@ import asyncio
 import json
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import pytest
 import tornado.websocket
 import zenoh
 
-from browser import Browser, chromium_binary
+from browser import Browser
 from support import Latest, Service, free_port, wait_for
 from zensim.schemas import Keys, LocoStatus, Odometry, RemoteState, SimStatus, VelocityCommand, topics
 from zensim.schemas.codec import Codec
@@ -28,14 +28,6 @@ from zensim.schemas.codec import Codec
 BASE_LINK = "pelvis"
 VIEW_FRACTION = 0.15
 """The robot's screen position may move less than this fraction of the view while it walks (followed)."""
-
-
-@pytest.fixture
-def browser() -> Iterator[Browser]:
-    if chromium_binary() is None:
-        pytest.fail("chromium is needed: apt-get install -y --no-install-recommends chromium")
-    with Browser(width=1280, height=800) as b:
-        yield b
 
 
 class Heard:

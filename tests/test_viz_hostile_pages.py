@@ -89,14 +89,7 @@ def deaf_page(port: int, messages: int, seconds: float) -> tuple[int, str]:
 
     Returns how many it got out before the viz closed it, and why it stopped.
     """
-    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
-    key = base64.b64encode(os.urandom(16)).decode()
-    sock.sendall((f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                  f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode())
-    response = b""
-    while b"\r\n\r\n" not in response:
-        response += sock.recv(1)  # the upgrade answer only; nothing after it is ever read
-    assert b" 101 " in response.split(b"\r\n")[0], response
+    sock = silent_page(port)  # the handshake: from here it sends, never reads
     payload = b'{"type": "nonsense"}'
     mask = os.urandom(4)
     masked = bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
@@ -240,7 +233,7 @@ def silent_page(port: int) -> socket.socket:
                   f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode())
     response = b""
     while b"\r\n\r\n" not in response:
-        response += sock.recv(1)
+        response += sock.recv(1)  # the upgrade answer only; nothing after it is ever read
     assert b" 101 " in response.split(b"\r\n")[0], response
     return sock
 

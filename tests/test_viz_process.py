@@ -11,13 +11,13 @@ from __future__ import annotations
 import os
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 import zenoh
 
-from browser import Browser, chromium_binary, decode_png
+from browser import Browser, decode_png
 from support import REPO, Latest, Service, free_port, wait_for
 from zensim.schemas import Codec, JointState, Keys, SimStatus
 
@@ -27,14 +27,6 @@ DISTAL_LINK = "left_wrist_yaw_link"
 GHOST_OFFSET_M = (0.0, 0.9, 0.0)
 """The viz's default ghost_offset_m: the ghost stands beside the robot."""
 SCREENSHOT = REPO / "docs" / "screenshot.png"
-
-
-@pytest.fixture
-def browser() -> Iterator[Browser]:
-    if chromium_binary() is None:
-        pytest.fail("chromium is needed: apt-get install -y --no-install-recommends chromium")
-    with Browser(width=1280, height=800) as b:
-        yield b
 
 
 def alive(session: zenoh.Session, keys: Keys) -> set[str]:

@@ -14,14 +14,14 @@ import json
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zenoh
 
-from browser import Browser, chromium_binary
+from browser import Browser
 from support import REPO, TWO_JOINT_ARM, Latest, Service, ctl, free_port, wait_for
 from zensim.schemas import Codec, JointState, JointTargets, Keys, Odometry, SimStatus, WorldInfo
 
@@ -78,14 +78,6 @@ class Feeder:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(2)
-
-
-@pytest.fixture
-def browser() -> Iterator[Browser]:
-    if chromium_binary() is None:
-        pytest.fail("chromium is needed: apt-get install -y --no-install-recommends chromium")
-    with Browser(width=1280, height=800) as b:
-        yield b
 
 
 def test_three_robots_one_world_viewer_client_contact_and_reset_one(

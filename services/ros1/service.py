@@ -17,7 +17,8 @@ Writes:
 Outputs go out on zenoh's callback threads as each state arrives; inputs come in on rospy's
 threads and go to zenoh at once. Nothing queues in the gateway: rospy's publishers and subscribers
 keep a short queue each and drop the oldest, so a flood on one side never stalls the other.
-The rules (names, checks, the odometry's frames, mesh URLs) live in mapping.py.
+The rules (names, checks, the odometry's frames, mesh URLs) live in mapping.py; the state's intake (size
+cap, rate, joint count), shared with `zensim ros2`, in common/ros_state.py.
 """
 
 from __future__ import annotations
@@ -42,17 +43,17 @@ from sensor_msgs.msg import JointState as RosJointState
 from std_msgs.msg import Float64
 from tf2_msgs.msg import TFMessage
 
-from zensim.common.follow import SimRun
 from zensim.common.edges import check_edge, is_loopback
 from zensim.common.logs import FORMAT, RateLimitedLog
 from zensim.common.robot_info import fetch_robot
+from zensim.common.ros_state import StateIntake
 from zensim.common.session import StartupError
-from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
-from zensim.schemas import (Codec, DecodeError, Imu, JointState, JointTargets, Keys, Odometry, Ros1Status, SimStatus,
+from zensim.common.wire import Refusals, TypedPublisher, error_text, read_payload
+from zensim.schemas import (DecodeError, Imu, JointState, JointTargets, Keys, Odometry, Ros1Status, SimStatus,
                             VelocityCommand, bounded, encoding_of, topics)
-from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, vector_cap_bytes
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES
 
-from .mapping import (CommandGate, GuiChanges, InputError, P3dOdometry, RateGate, RobotJoints, RosNames, resolve,
+from .mapping import (CommandGate, GuiChanges, InputError, P3dOdometry, RobotJoints, RosNames, resolve,
                       velocity_command, with_mesh_urls, xyzw)
 from .meshserver import MeshServer
 from .settings import Ros1Settings
@@ -87,8 +88,6 @@ class Counters:
     """What the status reports; updated under the gateway's lock."""
 
     def __init__(self) -> None:
-        self.joint_states_published = 0
-        self.sim_time_s = 0.0
         self.commands_received = 0
         self.commands_forwarded = 0
         self.commands_shed = 0
@@ -111,19 +110,14 @@ class Gateway:
         self._lock = threading.Lock()
         self.counters = Counters()
         self.refusals = Refusals(logger, "ROS message")
-        self._state_log = RateLimitedLog(logger, 5.0)
-        self.sim_run = SimRun()
-        """state/sim's run: `sim_run.restarted` is set when another sim run's robot must be learned again."""
-        self._robot: RobotJoints | None = None
+        self.intake = StateIntake(logger, settings.state_rate_hz, joints=self._on_joints, odom=self._on_odom,
+                                  imu=self._on_imu, sim_status=self._on_sim_status)
+        """state/*, and the robot: `intake.sim_run.restarted` is set when it must be learned again."""
         self._episode = ""
-        self._cap_bytes = 0
         self._gui_changes = GuiChanges()
         self._command_gate: CommandGate[str, float | JointTargets | VelocityCommand] = CommandGate(settings.command_rate_hz)
         """Per topic (a joint's name, or GUI_KEY): at most command_rate_hz forwards a second; guarded by _lock."""
         self._command_subscribers: list[rospy.Subscriber] = []
-        self._codecs: dict[type, Codec[Any]] = {JointState: Codec(JointState), Odometry: Codec(Odometry),
-                                                Imu: Codec(Imu), SimStatus: Codec(SimStatus)}
-        self._gates = {name: RateGate(settings.state_rate_hz) for name in ("joints", "odom", "imu")}
         self._base_frame = settings.base_frame
         # ROS side.
         self._joint_states = rospy.Publisher(names.joint_states, RosJointState, queue_size=ROS_QUEUE)
@@ -144,23 +138,14 @@ class Gateway:
     def start(self, robot: RobotJoints) -> None:
         """Take the robot, set robot_description, then start the flow of states."""
         self.adopt(robot)
-        keys = self._keys
-        self._subscribers = [
-            self._session.declare_subscriber(keys.joints, self._on_joints),
-            self._session.declare_subscriber(keys.odom, self._on_odom),
-            self._session.declare_subscriber(keys.imu, self._on_imu),
-            self._session.declare_subscriber(keys.sim_status, self._on_sim_status),
-        ]
+        self._subscribers = self.intake.subscribe(self._session, self._keys)
 
     # --- the robot and its description ------------------------------------------------------
 
     def adopt(self, robot: RobotJoints) -> None:
         """Take `robot` (at start and after a sim restart): its command topics and robot_description."""
-        with self._lock:
-            previous = self._robot
-            self._robot = robot
-            self._cap_bytes = vector_cap_bytes(robot.names)
-            self.sim_run.adopt(robot.run_id)
+        previous = self.intake.robot
+        self.intake.adopt(robot)
         if previous is None or previous.names != robot.names:
             for subscriber in self._command_subscribers:
                 subscriber.unregister()
@@ -196,37 +181,16 @@ class Gateway:
             host = f"[{host}]"
         return f"http://{host}:{self._mesh_server.port}"
 
-    # --- zensim -> ROS (zenoh threads) --------------------------------------------------------
+    # --- zensim -> ROS (zenoh threads; the intake decodes, thins and checks) -----------------
 
-    def _decode(self, sample: zenoh.Sample, message_type: type):
-        try:
-            return decode_input(sample, self._codecs[message_type], self._cap_bytes)
-        except DecodeError as exc:
-            self._state_log.warning("ignoring a bad %s on %s: %s", message_type.__name__, sample.key_expr, exc)
-            return None
-
-    def _on_joints(self, sample: zenoh.Sample) -> None:
-        state = self._decode(sample, JointState)
-        robot = self._robot
-        if state is None or robot is None or not self._gates["joints"].due(state.sim_time_s):
-            return
-        if len(state.q) != len(robot.names):
-            self._state_log.warning("state/joints has %d positions for %d joints: not published",
-                                    len(state.q), len(robot.names))
-            return
+    def _on_joints(self, state: JointState, robot: RobotJoints) -> None:
         stamp = rospy.Time.from_sec(state.sim_time_s)
         message = RosJointState(name=list(robot.names), position=state.q, velocity=state.dq, effort=state.tau)
         message.header.stamp = stamp
         self._clock.publish(Clock(clock=stamp))
         self._joint_states.publish(message)
-        with self._lock:
-            self.counters.joint_states_published += 1
-            self.counters.sim_time_s = state.sim_time_s
 
-    def _on_odom(self, sample: zenoh.Sample) -> None:
-        odom = self._decode(sample, Odometry)
-        if odom is None or not self._gates["odom"].due(odom.sim_time_s):
-            return
+    def _on_odom(self, odom: Odometry) -> None:
         p3d = P3dOdometry.of(odom)
         stamp = rospy.Time.from_sec(odom.sim_time_s)
         world = self._settings.world_frame
@@ -246,10 +210,7 @@ class Gateway:
         t.rotation = o
         self._tf.publish(TFMessage(transforms=[transform]))
 
-    def _on_imu(self, sample: zenoh.Sample) -> None:
-        imu = self._decode(sample, Imu)
-        if imu is None or not self._gates["imu"].due(imu.sim_time_s):
-            return
+    def _on_imu(self, imu: Imu) -> None:
         message = RosImu()
         message.header.stamp = rospy.Time.from_sec(imu.sim_time_s)
         message.header.frame_id = self._settings.imu_frame
@@ -260,10 +221,7 @@ class Gateway:
         a.x, a.y, a.z = imu.accel
         self._imu.publish(message)
 
-    def _on_sim_status(self, sample: zenoh.Sample) -> None:
-        status = self._decode(sample, SimStatus)
-        if status is None or self._robot is None or not self.sim_run.follows(status):
-            return
+    def _on_sim_status(self, status: SimStatus) -> None:
         if status.episode and status.episode != self._episode:
             if self._episode:
                 # The GUI's sliders that did not move since are not sent again (GuiChanges), so the
@@ -276,7 +234,7 @@ class Gateway:
     def _received(self) -> RobotJoints | None:
         with self._lock:
             self.counters.commands_received += 1
-            return self._robot
+            return self.intake.robot
 
     def _on_command(self, message: Float64, joint: str) -> None:
         robot = self._received()
@@ -397,13 +355,15 @@ class Gateway:
 
     # --- status ------------------------------------------------------------------------------------
 
-    def publish_status(self, seq: int, rate_hz: float) -> None:
+    def publish_status(self, seq: int) -> None:
+        rate_hz = self.intake.published_rate_hz()
+        published, sim_time_s = self.intake.published()
         with self._lock:
             c = self.counters
             status = Ros1Status(
                 seq=seq, master_uri=rosmaster_uri(), master_up=c.master_up, master_restarts=c.master_restarts,
-                joint_states_published=c.joint_states_published, joint_states_rate_hz=rate_hz,
-                sim_time_s=c.sim_time_s, commands_received=c.commands_received,
+                joint_states_published=published, joint_states_rate_hz=rate_hz,
+                sim_time_s=sim_time_s, commands_received=c.commands_received,
                 commands_forwarded=c.commands_forwarded, rejected=self.refusals.count,
                 last_error=self.refusals.last_error,
                 command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
@@ -581,7 +541,6 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
                 names.command("{joint}"), f"; meshes at {gateway.mesh_url()}" if mesh_server else "")
     period_s = 1.0 / settings.status_rate_hz
     seq = 0
-    last_count, last_time = 0, time.monotonic()
     exit_code = 0
     try:
         while not stop.wait(period_s):
@@ -591,7 +550,7 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
                              "`zensim up` stops with it)", ros_shutdown.reason)
                 exit_code = 1
                 break
-            if gateway.sim_run.restarted.is_set():
+            if gateway.intake.sim_run.restarted.is_set():
                 robot = _learn_robot(session, keys, settings, stop)
                 if robot is None:
                     break
@@ -600,11 +559,8 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
                     logger.info("robot from the restarted sim: %d joints", len(robot.names))
                 except LookupError as exc:
                     logger.warning("the restarted sim's URDF: %s; asking again", exc)
-                    gateway.sim_run.restarted.set()
-            now = time.monotonic()
-            count = gateway.counters.joint_states_published
-            gateway.publish_status(seq, (count - last_count) / (now - last_time))
-            last_count, last_time = count, now
+                    gateway.intake.sim_run.restarted.set()
+            gateway.publish_status(seq)
             seq += 1
     finally:
         token.undeclare()
@@ -613,5 +569,5 @@ def _serve(session: zenoh.Session, keys: Keys, settings: Ros1Settings, names: Ro
     c = gateway.counters
     logger.info("%d ROS commands read, %d forwarded, %d shed, %d rejected; %d joint states published",
                 c.commands_received, c.commands_forwarded, c.commands_shed, gateway.refusals.count,
-                c.joint_states_published)
+                gateway.intake.published()[0])
     return exit_code

@@ -21,7 +21,8 @@ per robot, each its own rmw_zenoh node in the namespace of its id with its frame
 DDS participant; the first robot's face alone publishes /clock (the world's time is one).
 
 Each ROS 2 message is built once (messages.py: CDR bytes) and handed to every transport. Outputs go
-out on zenoh's callback threads as each state arrives; commands come in on zenoh's callback threads
+out on zenoh's callback threads as each state arrives (taken in as `zensim ros1` takes it:
+common/ros_state.py); commands come in on zenoh's callback threads
 (rmw_zenoh) and on the DDS reader thread, are checked whole (mapping.py, common/ros_rules.py) and go to
 zenoh at once. A flood of commands is shed beyond COMMAND_RATE_HZ before it is decoded, and counted.
 """
@@ -38,15 +39,15 @@ from typing import Any, Final
 import msgspec
 import zenoh
 
-from zensim.common.follow import SimRun
 from zensim.common.logs import RateLimitedLog
 from zensim.common.robot_info import fetch_robot
-from zensim.common.ros_rules import InputError, P3dOdometry, RateGate, RobotJoints, xyzw
+from zensim.common.ros_rules import InputError, P3dOdometry, RobotJoints, xyzw
+from zensim.common.ros_state import StateIntake
 from zensim.common.session import StartupError
-from zensim.common.wire import Refusals, TypedPublisher, decode_input, error_text, read_payload
-from zensim.schemas import (Codec, DecodeError, Imu, JointState, Keys, LocoStatus, Odometry, Ros2Status, SimStatus,
-                            WorldInfo, topics)
-from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, INFO_CAP_BYTES, MIN_CAP_BYTES, vector_cap_bytes
+from zensim.common.token_bucket import TokenBucket
+from zensim.common.wire import Refusals, TypedPublisher, error_text, read_payload
+from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, LocoStatus, Odometry, Ros2Status, WorldInfo, topics
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, INFO_CAP_BYTES, MIN_CAP_BYTES
 
 from . import messages as msg
 from .cdr import CdrError
@@ -76,33 +77,10 @@ def names_of(settings: Ros2Settings) -> Ros2Names:
                         cmd_vel=s.cmd_vel_topic)
 
 
-class TokenBucket:
-    """At most `rate_hz` takes a second on average, `burst` at once. Thread-safe."""
-
-    def __init__(self, rate_hz: float, burst: int) -> None:
-        self._rate = rate_hz
-        self._burst = float(burst)
-        self._tokens = float(burst)
-        self._last = time.monotonic()
-        self._lock = threading.Lock()
-
-    def take(self) -> bool:
-        with self._lock:
-            now = time.monotonic()
-            self._tokens = min(self._burst, self._tokens + (now - self._last) * self._rate)
-            self._last = now
-            if self._tokens >= 1.0:
-                self._tokens -= 1.0
-                return True
-            return False
-
-
 class Counters:
     """What the status reports; updated under the gateway's lock."""
 
     def __init__(self) -> None:
-        self.joint_states_published = 0
-        self.sim_time_s = 0.0
         self.commands_received = 0
         self.commands_forwarded = 0
         self.last_command: float | None = None
@@ -132,16 +110,11 @@ class Gateway:
         self._lock = threading.Lock()
         self.counters = Counters()
         self.refusals = Refusals(logger, "ROS 2 message")
-        self._state_log = RateLimitedLog(logger, 5.0)
         self._flood = TokenBucket(COMMAND_RATE_HZ, COMMAND_BURST)
-        self.sim_run = SimRun()
-        """state/sim's run: `sim_run.restarted` is set when another sim run's robot must be learned again."""
-        self._robot: RobotJoints | None = None
-        self._cap_bytes = 0
-        self._codecs: dict[type, Codec[Any]] = {JointState: Codec(JointState), Odometry: Codec(Odometry),
-                                                Imu: Codec(Imu), SimStatus: Codec(SimStatus),
-                                                LocoStatus: Codec(LocoStatus)}
-        self._gates = {name: RateGate(settings.state_rate_hz) for name in ("joints", "odom", "imu")}
+        self.intake = StateIntake(logger, settings.state_rate_hz, joints=self._on_joints, odom=self._on_odom,
+                                  imu=self._on_imu)
+        """state/*, and the robot: `intake.sim_run.restarted` is set when it must be learned again."""
+        self._loco_status_codec = Codec(LocoStatus)
         self._loco_up = threading.Event()
         """A walking controller's alive/loco token is up for this robot: /cmd_vel goes to it."""
         self._loco_walking: bool | None = None
@@ -174,67 +147,29 @@ class Gateway:
     def start(self, robot: RobotJoints, urdf: str) -> None:
         """Take the robot, publish robot_description, then start the flow of states."""
         self.adopt(robot, urdf)
-        keys = self._keys
-        self._subscribers = [
-            self._session.declare_subscriber(keys.joints, self._on_joints),
-            self._session.declare_subscriber(keys.odom, self._on_odom),
-            self._session.declare_subscriber(keys.imu, self._on_imu),
-            self._session.declare_subscriber(keys.sim_status, self._on_sim_status),
-        ]
+        self._subscribers = self.intake.subscribe(self._session, self._keys)
 
     def adopt(self, robot: RobotJoints, urdf: str) -> None:
         """Take `robot` (at start and after a sim restart) and publish its URDF on robot_description."""
-        with self._lock:
-            self._robot = robot
-            self._cap_bytes = vector_cap_bytes(robot.names)
-            self.sim_run.adopt(robot.run_id)
+        self.intake.adopt(robot)
         self._description.put(msg.string(urdf))
         logger.info("%s published: %d characters", self.names.robot_description, len(urdf))
 
-    # --- zensim -> ROS 2 (zenoh threads) ----------------------------------------------------------
+    # --- zensim -> ROS 2 (zenoh threads; the intake decodes, thins and checks) ---------------------
 
-    def _decode(self, sample: zenoh.Sample, message_type: type) -> Any:
-        try:
-            return decode_input(sample, self._codecs[message_type], self._cap_bytes)
-        except DecodeError as exc:
-            self._state_log.warning("ignoring a bad %s on %s: %s", message_type.__name__, sample.key_expr, exc)
-            return None
-
-    def _on_joints(self, sample: zenoh.Sample) -> None:
-        state = self._decode(sample, JointState)
-        robot = self._robot
-        if state is None or robot is None or not self._gates["joints"].due(state.sim_time_s):
-            return
-        if len(state.q) != len(robot.names):
-            self._state_log.warning("state/joints has %d positions for %d joints: not published",
-                                    len(state.q), len(robot.names))
-            return
+    def _on_joints(self, state: JointState, robot: RobotJoints) -> None:
         self._clock.put(msg.clock(state.sim_time_s))
         self._joint_states.put(msg.joint_state(state.sim_time_s, robot.names, state.q, state.dq, state.tau))
-        with self._lock:
-            self.counters.joint_states_published += 1
-            self.counters.sim_time_s = state.sim_time_s
 
-    def _on_odom(self, sample: zenoh.Sample) -> None:
-        odom = self._decode(sample, Odometry)
-        if odom is None or not self._gates["odom"].due(odom.sim_time_s):
-            return
+    def _on_odom(self, odom: Odometry) -> None:
         p3d = P3dOdometry.of(odom)
         world, base = self._settings.world_frame, self._settings.base_frame
         self._odom.put(msg.odometry(odom.sim_time_s, world, base,
                                     msg.Pose(p3d.position, p3d.orientation_xyzw, p3d.linear, p3d.angular)))
         self._tf.put(msg.tf_message(odom.sim_time_s, [msg.Transform(world, base, p3d.position, p3d.orientation_xyzw)]))
 
-    def _on_imu(self, sample: zenoh.Sample) -> None:
-        imu = self._decode(sample, Imu)
-        if imu is None or not self._gates["imu"].due(imu.sim_time_s):
-            return
+    def _on_imu(self, imu: Imu) -> None:
         self._imu.put(msg.imu(imu.sim_time_s, self._settings.imu_frame, xyzw(imu.quat_wxyz), imu.gyro, imu.accel))
-
-    def _on_sim_status(self, sample: zenoh.Sample) -> None:
-        status = self._decode(sample, SimStatus)
-        if status is not None and self._robot is not None:
-            self.sim_run.follows(status)  # sets sim_run.restarted on a new run
 
     def _on_loco_alive(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:
@@ -246,12 +181,9 @@ class Gateway:
             self._loco_walking = None
 
     def _on_loco_status(self, sample: zenoh.Sample) -> None:
-        try:
-            status = decode_input(sample, self._codecs[LocoStatus], MIN_CAP_BYTES)
-        except DecodeError as exc:
-            self._state_log.warning("ignoring a bad LocoStatus on %s: %s", sample.key_expr, exc)
-            return
-        self._loco_walking = status.walking
+        status = self.intake.decode(sample, self._loco_status_codec, MIN_CAP_BYTES)
+        if status is not None:
+            self._loco_walking = status.walking
 
     # --- ROS 2 -> zensim (zenoh threads, the DDS thread) -------------------------------------------
 
@@ -266,7 +198,7 @@ class Gateway:
         def on_message(data: bytes) -> None:
             with self._lock:
                 self.counters.commands_received += 1
-                robot = self._robot
+                robot = self.intake.robot
             if not self._flood.take():
                 self.refusals.refuse(topic, f"more than {COMMAND_RATE_HZ:g} commands a second: shed")
                 return
@@ -306,13 +238,15 @@ class Gateway:
 
     # --- status ------------------------------------------------------------------------------------
 
-    def publish_status(self, seq: int, rate_hz: float) -> None:
+    def publish_status(self, seq: int) -> None:
+        rate_hz = self.intake.published_rate_hz()
+        published, sim_time_s = self.intake.published()
         with self._lock:
             c = self.counters
             status = Ros2Status(
                 seq=seq, transports=tuple(t.name for t in self.transports), domain_id=self._settings.domain_id,
-                joint_states_published=c.joint_states_published, joint_states_rate_hz=rate_hz,
-                sim_time_s=c.sim_time_s, commands_received=c.commands_received,
+                joint_states_published=published, joint_states_rate_hz=rate_hz,
+                sim_time_s=sim_time_s, commands_received=c.commands_received,
                 commands_forwarded=c.commands_forwarded, rejected=self.refusals.count,
                 last_error=self.refusals.last_error,
                 command_age_s=None if c.last_command is None else time.monotonic() - c.last_command,
@@ -390,7 +324,6 @@ class Face:
         self.gateway = Gateway(session, self.keys, settings, names, transports, publish_clock)
         self.token: zenoh.LivelinessToken | None = None
         self.seq = 0
-        self.last_count, self.last_time = 0, time.monotonic()
 
     def start(self, session: zenoh.Session, stop: threading.Event) -> bool:
         """Learn the robot and start the flow (False: stopped first)."""
@@ -411,7 +344,7 @@ class Face:
     def tick(self, session: zenoh.Session, stop: threading.Event) -> bool:
         """Learn a restarted sim's robot again, then publish the status (False: stopped while learning)."""
         gateway = self.gateway
-        if gateway.sim_run.restarted.is_set():
+        if gateway.intake.sim_run.restarted.is_set():
             robot = fetch_robot(session, self.keys, self.settings.info_timeout_s, stop, RobotJoints.from_info, logger)
             if robot is None:
                 return False
@@ -419,10 +352,7 @@ class Face:
                 gateway.adopt(robot, read_urdf(session, self.keys, self.settings.info_timeout_s))
             except LookupError as exc:
                 logger.warning("the restarted sim's URDF: %s; asking again", exc)
-        now = time.monotonic()
-        count = gateway.counters.joint_states_published
-        gateway.publish_status(self.seq, (count - self.last_count) / max(now - self.last_time, 1e-9))
-        self.last_count, self.last_time = count, now
+        gateway.publish_status(self.seq)
         self.seq += 1
         return True
 
@@ -433,7 +363,7 @@ class Face:
         c = self.gateway.counters
         logger.info("%s: %d ROS 2 commands read, %d forwarded, %d rejected; %d joint states published",
                     self.settings.robot_id, c.commands_received, c.commands_forwarded, self.gateway.refusals.count,
-                    c.joint_states_published)
+                    self.gateway.intake.published()[0])
 
 
 def node_name_of(settings: Ros2Settings) -> str:

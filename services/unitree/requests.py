@@ -15,10 +15,10 @@ took a core from the sim on a two-core machine (a 10 kHz sport-request flood: si
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from typing import Final
 
+from zensim.common.token_bucket import TokenBucket
 from zensim.schemas import bounded
 
 from .idl import Request_
@@ -30,24 +30,6 @@ REQUESTS_PER_S: Final = 100.0
 answer costs about a millisecond, so this is at most a tenth of a core)."""
 REQUEST_BURST: Final = 50.0
 """Requests answered at once after a quiet spell."""
-
-
-class TokenBucket:
-    """`rate_per_s` events per second with bursts of `burst`; `take()` says whether one more fits now."""
-
-    def __init__(self, rate_per_s: float, burst: float) -> None:
-        self.rate_per_s, self.burst = rate_per_s, burst
-        self._tokens = burst
-        self._at = time.monotonic()
-
-    def take(self) -> bool:
-        now = time.monotonic()
-        self._tokens = min(self.burst, self._tokens + (now - self._at) * self.rate_per_s)
-        self._at = now
-        if self._tokens >= 1.0:
-            self._tokens -= 1.0
-            return True
-        return False
 
 
 @dataclass

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final
 
+from zensim.common.token_bucket import TokenBucket
 from zensim.schemas import RemoteState, VelocityCommand
 
 PUTS_PER_S: Final = 30.0
@@ -48,10 +49,8 @@ class DriveGate:
 
     def __init__(self, rate: float = PUTS_PER_S, burst: float = PUT_BURST,
                  clock: Callable[[], float] = time.monotonic) -> None:
-        self.rate, self.burst = rate, burst
-        self._clock = clock
-        self.tokens = burst
-        self.at = self._clock()
+        self.rate = rate
+        self._bucket = TokenBucket(rate, burst, clock)
         self.waiting: Drive | None = None
         """An input that came faster than the rate: the next to go out (replaced by a newer one)."""
         self.received = 0
@@ -61,19 +60,10 @@ class DriveGate:
         self.shed = 0
         """Inputs replaced unsent by a newer one (latest wins)."""
 
-    def _take(self) -> bool:
-        now = self._clock()
-        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.rate)
-        self.at = now
-        if self.tokens >= 1.0:
-            self.tokens -= 1.0
-            return True
-        return False
-
     def offer(self, drive: Drive) -> Drive | None:
         """A page's input: returned when it may go out now, else kept (replacing the one waiting)."""
         self.received += 1
-        if self.waiting is None and self._take():
+        if self.waiting is None and self._bucket.take():
             self.sent += 1
             return drive
         if self.waiting is not None:
@@ -83,7 +73,7 @@ class DriveGate:
 
     def flush(self) -> Drive | None:
         """The input waiting, when the rate now lets it out."""
-        if self.waiting is None or not self._take():
+        if self.waiting is None or not self._bucket.take():
             return None
         drive, self.waiting = self.waiting, None
         self.sent += 1

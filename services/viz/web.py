@@ -52,6 +52,7 @@ import tornado.web
 import tornado.websocket
 
 from zensim.common.logs import RateLimitedLog
+from zensim.common.token_bucket import TokenBucket
 
 from .access import Guard
 
@@ -102,24 +103,6 @@ def binary_frame(payload: bytes) -> bytes:
     else:
         length = struct.pack("!BQ", 127, n)
     return b"\x82" + length + payload
-
-
-class TokenBucket:
-    """`rate` events per second with bursts of `burst`; `take()` says whether one more is allowed now."""
-
-    def __init__(self, rate: float, burst: float) -> None:
-        self.rate, self.burst = rate, burst
-        self.tokens = burst
-        self.at = time.monotonic()
-
-    def take(self) -> bool:
-        now = time.monotonic()
-        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.rate)
-        self.at = now
-        if self.tokens >= 1.0:
-            self.tokens -= 1.0
-            return True
-        return False
 
 
 def _collect(future: Any) -> None:
