@@ -10,7 +10,7 @@ import pytest
 
 from browser import Browser, decode_png
 from support import Latest
-from test_viz_process import JOINT, Stack, browser, open_page, stack  # noqa: F401 - fixtures
+from test_viz_process import JOINT, Stack, open_page, stack  # noqa: F401 - fixtures
 from zensim.schemas import JointState
 from zensim.viz import panel, plots
 
