@@ -231,7 +231,7 @@ class Engine:
             self.publisher.submit(self._take_frame())
             return
         self.seqs[only] += 1
-        states = self.world.reader.messages(self.world.take(self.seqs))[only]
+        states = self.world.reader.messages(self.world.take(self.seqs), only)[only]
         self.publisher.drain()
         self.robots[only].put_states(states)
 

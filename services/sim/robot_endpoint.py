@@ -171,9 +171,12 @@ class RobotEndpoint:
     # --- the engine's side (RobotPort) ------------------------------------------------------------
 
     def put_states(self, states: States) -> None:
-        self.pub_joints.put(states.joints)
+        """Put one instant's states; joints and imu not while a sensor dropout withholds them (None)."""
+        if states.joints is not None:
+            self.pub_joints.put(states.joints)
         self.pub_odom.put(states.odom)
-        self.pub_imu.put(states.imu)
+        if states.imu is not None:
+            self.pub_imu.put(states.imu)
         self.pub_contacts.put(states.contacts)
 
     def publish_status(self, rtf: float, fallen: bool, jitter_p99_s: float, waiting: bool) -> None:
@@ -214,6 +217,7 @@ class RobotEndpoint:
             faults=sim.faults.state,
             faults_set=sim.faults.changes,
             dropped_commands=sim.link.dropped,
+            withheld_states=sim.faults.withheld,
         ))
 
     def jumped(self, rebuilt: bool) -> None:
@@ -387,9 +391,10 @@ class RobotEndpoint:
             self.sim.faults_changed()
             link = request.link
             self.engine.request_log.info("%s: faults %s (%d joints, sensors %s, link %s)", self.keys.robot, request.verb,
-                                         len(request.joints), "noisy" if request.sensors else "exact",
+                                         len(request.joints), "faulty" if request.sensors else "exact",
                                          "perfect" if link is None else
-                                         f"delay {link.command_delay_steps} steps, drop {link.drop_probability:g}")
+                                         f"delay {link.command_delay_steps} steps, drop {link.drop_probability:g}, "
+                                         f"state delay {link.state_delay_steps} steps")
         return msgspec.structs.replace(self._status_reply(), faults=faults)
 
     def _status_reply(self, ok: bool = True, error: str | None = None, off_loop: bool = False) -> CtlReply:
