@@ -437,3 +437,51 @@ class TestStateDelay:
         # 7 steps back from the newest instant lies between two advances: the reading at or before, 2 advances.
         assert reply["joints"]["sim_time_s"] == pytest.approx(reply["sim_time_s"] - 10 * 0.002, abs=1e-9)
         assert reply["odom"]["sim_time_s"] == pytest.approx(reply["sim_time_s"], abs=1e-12)
+        # A reset is a new episode: no reading of the last one comes after it (the reset's own is repeated).
+        reset = ctl(zsession, keys.ctl("reset"), {})
+        for _ in range(2):
+            assert advance(zsession, keys, command(info))["joints"]["sim_time_s"] == reset["sim_time_s"]
+        assert advance(zsession, keys, command(info))["joints"]["sim_time_s"] > reset["sim_time_s"]
+
+
+def test_a_world_advance_leaves_a_withheld_robot_out_and_delays_another_and_the_rest_are_untouched(
+        start_service, zsession, robot_id, tmp_path) -> None:
+    """A world of three G1s under lockstep (its states put from a thread of their own): robot 0 in a dropout that
+    never ends, robot 1 with a state delay, robot 2 without a fault."""
+    import zenoh
+
+    from support import wait_for
+    from zensim.schemas import Codec, WorldAdvanceReply, WorldAdvanceRequest
+
+    ids = [f"{robot_id}-{k}" for k in range(3)]
+    path = tmp_path / "three.toml"
+    path.write_text(f'id = "{robot_id}-w"\n' + "".join(
+        f'[[robots]]\nid = "{rid}"\nxy = [{1.2 * k}, 0.0]\n' for k, rid in enumerate(ids)))
+    joints = Latest(zsession, Keys(ids[0]).joints, JointState)
+    odom = Latest(zsession, Keys(ids[0]).odom, Odometry)
+    status = Latest(zsession, Keys(ids[0]).sim_status, SimStatus)
+    start_service("sim", "--world", str(path), "--clock", "lockstep")
+    wait_for(lambda: list(zsession.liveliness().get(Keys(ids[-1]).alive("sim"), timeout=1)), 60, "the world up")
+    assert ctl(zsession, Keys(ids[0]).ctl("faults"), {"verb": "set", "sensors": {
+        "dropout_probability": 1.0, "dropout_s": 10.0}})["ok"]
+    assert ctl(zsession, Keys(ids[1]).ctl("faults"), {"verb": "set", "link": {"state_delay_steps": 20}})["ok"]
+    odom.wait(what="a first odometry")
+    joints_before, odom_before = joints.count, odom.count
+    key, request_codec, reply_codec = Keys(f"{robot_id}-w").world_advance, Codec(WorldAdvanceRequest), Codec(WorldAdvanceReply)
+    replies = []
+    for _ in range(5):
+        got = list(zsession.get(key, payload=request_codec.encode(WorldAdvanceRequest()),
+                                encoding=zenoh.Encoding("application/msgpack"), timeout=10))
+        reply = reply_codec.decode(got[0].ok.payload.to_bytes(), "application/msgpack")
+        assert reply.ok, reply.error
+        assert reply.withheld == (ids[0],) and sorted(reply.states) == sorted(ids[1:]), reply.withheld
+        replies.append(reply)
+    late, on_time = replies[-1].states[ids[1]], replies[-1].states[ids[2]]
+    assert on_time.joints.sim_time_s == on_time.odom.sim_time_s == replies[-1].sim_time_s
+    lockstep_steps = round((replies[-1].sim_time_s - replies[-2].sim_time_s) / 0.002)
+    back = -(-20 // lockstep_steps) * lockstep_steps * 0.002  # whole advances, rounded up
+    assert late.joints.sim_time_s == pytest.approx(replies[-1].sim_time_s - back, abs=1e-9)
+    assert late.imu.sim_time_s == late.joints.sim_time_s and late.odom.sim_time_s == replies[-1].sim_time_s
+    odom.wait(lambda _: odom.count >= odom_before + 5, what="robot 0's odometry (never withheld)")
+    status.wait(lambda s: s.withheld_states >= 5, what="robot 0's withheld states counted")
+    assert joints.count == joints_before, "robot 0's joints withheld"
