@@ -16,9 +16,10 @@ every joint's q and dq. The physics is untouched: a controller sees the fault, t
 Then `report` (the same path, on the robot's finished JointState and Imu of one instant):
 - orientation drift: Imu.quat_wxyz is turned by rate x (t - t0) about a world axis (q_axis * q_true), t0
   the sim time the fault was set or the robot last reset (a new episode: a fresh IMU);
-- state delay (LinkFaults.state_delay_steps k): the readings of the last k steps are kept (a ring, bounded by
-  k + 1 readings) and the newest at or before t - k steps is reported, restamped with this instant's `seq`;
-  until one is that old, the oldest kept. A reset or a new fault set starts the ring over;
+- state delay (LinkFaults.state_delay_steps k): the readings of the last k steps are kept (a ring of at most
+  k + 1 readings, one per instant: an instant read again while paused replaces its reading) and the newest
+  at or before t - k steps is reported, restamped with this instant's `seq`; until one is that old, the
+  oldest kept. A reset or a new fault set starts the ring over;
 - dropouts: one uniform draw per state instant outside a dropout; under `dropout_probability` a dropout
   starts there and the instant's JointState and Imu are withheld (None), and every later one less than
   `dropout_s` after it. Counted in `withheld`.
@@ -280,6 +281,11 @@ class Faults:
                 imu = msgspec.structs.replace(imu, quat_wxyz=tuple(quat.tolist()))
             if reporting.delay_s:
                 ring = self._ring
+                if ring and t <= ring[-1][0] + TIME_SLACK_S:  # no newer than the newest kept
+                    if t < ring[-1][0] - TIME_SLACK_S:  # time went back (a world's reset): the past is gone
+                        ring.clear()
+                    else:  # the same instant read again (paused: states go on, time stands): kept once
+                        ring.pop()
                 ring.append((t, joints, imu))
                 due = t - reporting.delay_s + TIME_SLACK_S
                 while len(ring) > 1 and ring[1][0] <= due:
