@@ -12,6 +12,10 @@ holding its default pose on its gains, settled for 1 s, then given the case's fa
   all       both
   link      a command delay of 10 steps (ctl/faults' link): each command is held in flight for 10 steps, and a
             lockstep advance runs its 10 steps one at a time (a command lands mid-advance)
+  drift     the IMU's orientation drifting at 0.01 rad/s about z: one quaternion product per state read
+  dropout   dropouts (probability 0.05 per state, 10 ms each): one uniform draw per state read, 1 in 4 withheld
+  delay     a state delay of 10 steps (link.state_delay_steps): each state read kept in a ring of 3, the one
+            two reads back handed out (its JointState and Imu restamped)
 
 Every round times, from the same settled state and with the cases interleaved (the machine's load falls on
 all alike), `--steps` steps two ways and the state reads of them; every case is sent the held pose as a new
@@ -22,7 +26,8 @@ command every 10 steps (a 100 Hz controller, as the course's lockstep advances a
   read      World.reader.read per state (the one state reader: take the arrays, add the sensor faults, build
             JointState, Odometry, Imu, Contacts): once per 5 steps at 100 Hz states
 
-Time is the thread's CPU time (time.thread_time); medians over rounds, and each case's ratio to none.
+The state reads move the clock on by 5 steps each (`data.time`, nothing else: the same figures), so a
+delay's ring turns as in a run. Time is the thread's CPU time (time.thread_time); medians over rounds, and each case's ratio to none.
 Results go to stdout; docs/benchmarks.md keeps the figures.
 """
 
@@ -40,13 +45,16 @@ from zensim.sim.physics import Limits
 from zensim.sim.world import World
 
 SETTLE_S = 1.0
-CASES = ("none", "motors", "sensors", "all", "link")
+CASES = ("none", "motors", "sensors", "all", "link", "drift", "dropout", "delay")
 COMMAND_EVERY = 10
 """Steps between two commands (20 ms: a 100 Hz controller; a lockstep advance of the course)."""
 LINK = LinkFaults(command_delay_steps=10)
 MOTORS = (JointFault(joint="left_knee_joint", torque_scale=0.9), JointFault(joint="left_elbow_joint", locked=True),
           JointFault(joint="left_wrist_roll_joint", limp=True))
 OFFSET = (JointFault(joint="right_knee_joint", encoder_offset_rad=0.02),)
+DRIFT = SensorFaults(orientation_drift_rad_s=0.01)
+DROPOUT = SensorFaults(dropout_probability=0.05, dropout_s=0.01)
+DELAY = LinkFaults(state_delay_steps=10)
 SENSORS = SensorFaults(gyro_noise_std_rad_s=0.005, gyro_bias_rad_s=(0.01, 0.0, 0.0), accel_noise_std_m_s2=0.05,
                        accel_bias_m_s2=(0.0, 0.1, 0.0), q_noise_std_rad=0.001, dq_noise_std_rad_s=0.02)
 
@@ -64,8 +72,8 @@ def settled() -> tuple[World, mujoco.MjData]:
 def inject(world: World, case: str) -> None:
     """Put the case's faults on (from the settled state)."""
     joints = (MOTORS if case in ("motors", "all") else ()) + (OFFSET if case in ("sensors", "all") else ())
-    sensors = SENSORS if case in ("sensors", "all") else None
-    link = LINK if case == "link" else None
+    sensors = SENSORS if case in ("sensors", "all") else {"drift": DRIFT, "dropout": DROPOUT}.get(case)
+    link = {"link": LINK, "delay": DELAY}.get(case)
     sim = world.robots[0]
     sim.faults.request(FaultsRequest(verb="set", joints=joints, sensors=sensors, seed=1, link=link)
                        if joints or sensors or link else FaultsRequest(verb="clear"))
@@ -99,8 +107,11 @@ def main() -> int:
                         sim.accept_command(hold)
                         world.step(COMMAND_EVERY, held=True)
                 else:
+                    t0 = world.data.time
                     for k in range(reads):
+                        world.data.time = t0 + 5 * k * world.timestep_s
                         world.reader.read(world.data, [k])
+                    world.data.time = t0
                 elapsed = time.thread_time() - start
                 times[case, how].append(elapsed / (reads if how == "read" else args.steps) * 1e6)
                 assert not world.fallen(world.take([0]))[0], f"{case}: the robot fell; the case measures nothing"
