@@ -485,3 +485,25 @@ def test_a_world_advance_leaves_a_withheld_robot_out_and_delays_another_and_the_
     odom.wait(lambda _: odom.count >= odom_before + 5, what="robot 0's odometry (never withheld)")
     status.wait(lambda s: s.withheld_states >= 5, what="robot 0's withheld states counted")
     assert joints.count == joints_before, "robot 0's joints withheld"
+
+
+def test_at_real_time_a_state_delay_hands_out_the_newest_reading_at_or_before_k_steps_back(
+        start_service, zsession, robot_id) -> None:
+    """The real-time clock, states every 10 ms of sim time (5 steps): a delay of 7 steps (14 ms) gives the
+    reading 2 state periods back (the newest at or before), a delay of 10 exactly 2; odometry is never late."""
+    keys = Keys(robot_id)
+    joints, odom = Latest(zsession, keys.joints, JointState), Latest(zsession, keys.odom, Odometry)
+    joints.keep_history = odom.keep_history = True
+    start_service("sim", "--mode", "fixed")
+    wait_alive(zsession, keys)
+    for k, back_s in ((7, 0.02), (10, 0.02)):
+        reply = ctl(zsession, keys.ctl("faults"), {"verb": "set", "link": {"state_delay_steps": k}})
+        assert reply["ok"], reply
+        since = reply["sim_time_s"]
+        odom.wait(lambda o: o.sim_time_s > since + 0.2, what="0.2 s of states")  # noqa: B023
+        truth = {o.seq: o.sim_time_s for o in odom.history}
+        late = [(truth[j.seq], j.sim_time_s) for j in joints.history
+                if j.seq in truth and j.sim_time_s > since + back_s + 0.005]
+        assert len(late) > 10
+        for now, then in late:
+            assert now - then == pytest.approx(back_s, abs=1e-9), (k, now, then)

@@ -9,6 +9,11 @@ runs on the other core while the loop steps the next instant, instead of after i
 
 Order is kept: frames go out oldest first, and a state put by any other path (a reset, ctl/step,
 world/advance) waits for the frames before it (`StatePublisher.drain`), so `seq` never goes back.
+
+The sensor faults (faults.py) act in `messages`: noise and bias on the arrays (`observe`), then drift, state
+delay and dropouts on each robot's finished JointState and Imu (`report`, with the faults' figures the frame
+took at its instant). A delay hands out an older instant's messages, a dropout None for both (not put);
+state/odom and state/contacts are the truth, untouched.
 """
 
 from __future__ import annotations
