@@ -52,6 +52,22 @@ def _check_finite(field: str, values: Vector | None) -> None:
             raise ValueError(f"`{field}[{i}]` must be a finite number, got {value}")
 
 
+MAX_AT_S: Final = 1e7
+"""Latest sim time a request may be scheduled for (`at_s`), s: 116 days, far beyond any run; a later time is a
+typo or an attack."""
+MAX_SCHEDULED: Final = 1024
+"""Requests one robot keeps waiting for their `at_s` (the sim's ctl/push, ctl/band, ctl/faults together; the
+walking controller's velocities): one more is refused. A scenario schedules its events ahead, so this bounds
+its events of each kind (zensim/scenario_file.py)."""
+
+
+def _check_at(at_s: float | None) -> None:
+    if at_s is not None:
+        _check_finite("at_s", (at_s,))
+        if not 0.0 <= at_s <= MAX_AT_S:
+            raise ValueError(f"`at_s` must be in [0, {MAX_AT_S:g}] s of sim time, got {at_s:g}")
+
+
 def _check_length(field: str, values: tuple | None, expected: int, against: str) -> None:
     if values is not None and len(values) != expected:
         raise ValueError(
@@ -223,6 +239,10 @@ class SimStatus(Message, frozen=True, tag="sim_status", kw_only=True):
     dropped_commands: int = 0
     """Commands the sim accepted (checked and sound) and then lost, as the link fault `drop_probability`
     (ctl/faults) asked, since start: never applied (and not counted in `rejected_commands`)."""
+    scheduled: int = 0
+    """ctl requests (push, band, faults) accepted with an `at_s` and still waiting for it. A reset drops them (a
+    new episode); one that no longer fits when its time comes (a 17th push at once) is refused then, counted
+    in `rejected_requests` with its reason in `last_error`."""
     withheld_states: int = 0
     """State instants whose state/joints and state/imu were withheld by a sensor dropout (ctl/faults
     `dropout_probability`), since start."""
@@ -471,6 +491,10 @@ class CtlReply(Message, frozen=True, tag="ctl_reply", kw_only=True):
     """ctl/reset: the variant of the robot the reset drew (`randomize`); null: the nominal robot."""
     faults: FaultsState | None = None
     """ctl/faults: the faults active after the request (null: none)."""
+    scheduled_at_s: float | None = None
+    """A request with `at_s`: the sim time it will act at (the start of the first step at or after `at_s`); its
+    effect shows in state/sim then. `push`, `band` and `faults` say what is in force now (a push: the one it will
+    apply, from `start_s`). Null: it acted now."""
 
 
 # --- disturbances: ctl/push, ctl/band (services/sim/disturbances.py) ----------
@@ -500,8 +524,13 @@ class PushRequest(Message, frozen=True, tag="push_request", kw_only=True, forbid
     """How long it acts, s of sim time, in (0, 10]."""
     body: str | None = None
     """The body (URDF link) pushed; null: the robot's base link (the G1's `pelvis`)."""
+    at_s: float | None = None
+    """Sim time to act at, s (SimStatus.sim_time_s's clock): the request is checked now and carried out right
+    before the first physics step that starts at or after it, the same step in every run (a time already past is
+    refused); null: at the next step."""
 
     def __post_init__(self) -> None:
+        _check_at(self.at_s)
         _check_finite("direction", self.direction)
         if math.fsum(d * d for d in self.direction) <= 0.0:
             raise ValueError("`direction` must not be zero")
@@ -543,8 +572,15 @@ class BandRequest(Message, frozen=True, tag="band_request", kw_only=True, forbid
     """on, off, lower or raise."""
     length_m: float | None = None
     """The band's rest length, m, in [0, 5]."""
+    at_s: float | None = None
+    """Sim time to act at, s (SimStatus.sim_time_s's clock): the request is checked now and carried out right
+    before the first physics step that starts at or after it, the same step in every run (a time already past is
+    refused); null: at the next step."""
 
     def __post_init__(self) -> None:
+        _check_at(self.at_s)
+        if self.at_s is not None and self.verb is None and self.length_m is None:
+            raise ValueError("`at_s` goes with a verb or a `length_m`: a request without them only asks")
         if self.length_m is not None:
             _check_finite("length_m", (self.length_m,))
             if not 0 <= self.length_m <= MAX_BAND_LENGTH_M:
@@ -728,8 +764,15 @@ class FaultsRequest(Message, frozen=True, tag="faults_request", kw_only=True, fo
     states), in [0, 2^63)."""
     link: LinkFaults | None = None
     """set: the link's command delay, drops and state delay; null: a perfect link."""
+    at_s: float | None = None
+    """Sim time to act at (set or clear), s (SimStatus.sim_time_s's clock): the request is checked now and carried out right
+    before the first physics step that starts at or after it, the same step in every run (a time already past is
+    refused); null: at the next step."""
 
     def __post_init__(self) -> None:
+        _check_at(self.at_s)
+        if self.at_s is not None and self.verb is None:
+            raise ValueError("`at_s` goes with a verb (set or clear): a request without one only asks")
         if self.verb != "set" and (self.joints or self.sensors is not None or self.seed or self.link is not None):
             raise ValueError("`joints`, `sensors`, `link` and `seed` go with `verb: set`")
         if len(self.joints) > MAX_JOINT_FAULTS:
@@ -1292,8 +1335,13 @@ class VelocityCommand(Message, frozen=True, tag="velocity_command", kw_only=True
     """Yaw rate, counter-clockwise positive, rad/s."""
     timeout_s: float = DEFAULT_VELOCITY_TIMEOUT_S
     """Sim time after which the command lapses and the robot stops, s (0..864000)."""
+    at_s: float | None = None
+    """Sim time from which the command holds, s: the walking controller keeps it (up to 1024 at once) and takes it
+    at its first tick at or after `at_s`, the same tick in every run under lockstep; `timeout_s` counts from
+    `at_s`. Null: from the tick it arrives at."""
 
     def __post_init__(self) -> None:
+        _check_at(self.at_s)
         _check_finite("velocity", (self.vx, self.vy, self.wz, self.timeout_s))
         for name in ("vx", "vy", "wz"):
             if abs(getattr(self, name)) > MAX_VELOCITY:

@@ -11,11 +11,13 @@ import math
 import subprocess
 import sys
 import textwrap
+from xml.etree import ElementTree
 from pathlib import Path
 
 import pytest
 
 from support import wait_for
+from zensim.mcapfile import read_recording
 from zensim.schemas import Keys
 
 SCENARIO = """
@@ -77,6 +79,69 @@ def test_a_scenario_pushes_and_walks_the_reference_controller_and_reports_it(sta
     assert [e["type"] for e in result["events"]] == ["loco", "velocity", "push"] and result["refused_events"] == 0
 
 
+REPLAYED = """
+end_s = 4.0
+
+[[events]]
+at_s = 0.0
+type = "loco"
+verb = "walk"
+
+[[events]]
+at_s = 1.0
+type = "velocity"
+vx = 0.4
+
+[[events]]
+at_s = 2.013
+type = "push"
+direction = [0, 1, 0]
+magnitude_n = 60
+duration_s = 0.1
+
+[[events]]
+at_s = 2.5
+type = "faults"
+request = { verb = "set", seed = 3, joints = [{ joint = "left_knee_joint", torque_scale = 0.7 }], sensors = { gyro_noise_std_rad_s = 0.05 } }
+"""
+"""Walking, a push mid-step and faults with seeded noise: everything that could land a step early or late."""
+DETERMINED = ("state/joints", "state/odom", "state/imu", "state/contacts", "cmd/motors")
+"""What the sim and the controller publish per step of sim time; state/sim and state/loco go at wall-clock
+rates (their figures are the wall clock's: rtf, jitter, run ids), so they are left out."""
+
+
+def recorded_run(start_service, zsession, robot_id: str, tmp_path: Path) -> dict[str, list]:
+    """One run of REPLAYED against the reference controller, recorded; its messages up to end_s by key."""
+    env = {"ZENSIM_ROBOT_ID": robot_id}
+    sim = start_service("sim", "--clock", "lockstep", env=env)
+    loco = start_service("loco", env=env)
+    wait_for(lambda: any(r.ok is not None for r in zsession.liveliness().get(Keys(robot_id).alive("loco"), timeout=1)),
+             60, "alive/loco")
+    path = tmp_path / f"{robot_id}.toml"
+    path.write_text(REPLAYED)
+    scenario = start_service("scenario", str(path), "--record", str(tmp_path / f"{robot_id}.mcap"), env=env)
+    assert finished(scenario, 240) == 0, scenario.log()
+    loco.stop()
+    sim.stop()
+    recording = read_recording(tmp_path / f"{robot_id}.mcap")
+    return {key: [m for m in recording.of(key) if 0.0 < m.sim_time_s <= 4.0] for key in DETERMINED[:4]} | {
+        "cmd/motors": recording.of("cmd/motors")[:150]}  # 150 ticks of 20 ms: 3 s of commands
+
+
+def test_the_same_scenario_and_controller_give_bit_identical_recordings(start_service, zsession, robot_id, tmp_path):
+    """Each push, fault and velocity is sent ahead with its sim time: it acts at the same step in both runs
+    whatever the load, and the seeded noise draws the same numbers, so every state and command is the same."""
+    first = recorded_run(start_service, zsession, robot_id, tmp_path)
+    second = recorded_run(start_service, zsession, robot_id + "b", tmp_path)
+    assert len(first["state/joints"]) == 200 and len(first["cmd/motors"]) == 150, {k: len(v) for k, v in first.items()}
+    pushed = [m for m in first["state/odom"] if 2.02 <= m.sim_time_s <= 2.12]
+    assert max(abs(m.lin_vel_world[1]) for m in pushed) > 0.1, "the push moved the robot"
+    for key in DETERMINED:
+        assert len(first[key]) == len(second[key]), key
+        for a, b in zip(first[key], second[key]):
+            assert a == b, f"{key} differs at {getattr(a, 'sim_time_s', '')}: {a} != {b}"
+
+
 @pytest.mark.parametrize("body, line", [
     ('end_s = 5\n[[events]]\nat_s = 1\ntype = "jump"\n', "an event's type is one of push, band, velocity, loco, faults"),
     ('end_s = 5\n[[events]]\nat_s = 1\ntype = "push"\ndirection = [1, 0, 0]\nmagnitude_n = nan\nduration_s = 0.2\n',
@@ -135,6 +200,27 @@ def test_a_short_course_runs_the_reference_controller_end_to_end_and_writes_the_
     assert all(p["force_n"][1] > 0 for p in pushed["pushes"]), pushed  # from the right: towards +y
     assert (out / "flat-s0.mcap").stat().st_size > 100_000 and (out / "push_right-s0.mcap").stat().st_size > 100_000
     assert "flat" in done.stdout and "survived" in done.stdout, done.stdout
+    figure = ElementTree.parse(out / "course.svg").getroot()  # the plot image: an SVG, one dot per run
+    dots = [c for c in figure.iter("{http://www.w3.org/2000/svg}circle")]
+    assert [d.find("{http://www.w3.org/2000/svg}title").text.split(":")[0] for d in dots] == ["seed 0", "seed 0"]
+    assert {t.text for t in figure.iter("{http://www.w3.org/2000/svg}text")} >= {"flat", "push_right", "1/1"}
+
+
+def test_course_variants_run_each_seed_on_its_own_robot_and_say_which(tmp_path):
+    """`--variants true`: before each run the course resets the robot into the variant its seed draws."""
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "zensim", "course", "--items", "flat", "--seeds", "2", "--variants",
+                           "true", "--output-dir", str(out), "--log-level", "WARNING"],
+                          capture_output=True, text=True, timeout=400)
+    assert done.returncode == 0, done.stdout + done.stderr
+    runs = json.loads((out / "course.json").read_text())["runs"]
+    variants = [run["variant"] for run in runs]
+    assert [v["seed"] for v in variants] == [0, 1] and variants[0]["mass_kg"] != variants[1]["mass_kg"], variants
+    for variant in variants:
+        assert variant["mass_kg"] != variant["nominal_mass_kg"] and 0.6 <= variant["friction_scale"] <= 1.4, variant
+        assert all(0.85 <= s <= 1.0 for s in variant["motor_strength"]), variant
+    assert all(run["result"]["completed"] for run in runs), runs
+    assert f"variant 1: {variants[1]['mass_kg']:.1f} kg" in (out / "course.md").read_text()
 
 
 SQUAT_HOLDER = textwrap.dedent("""

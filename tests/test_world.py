@@ -148,6 +148,31 @@ def test_held_targets_step_the_world_to_the_bit_as_step_by_step(tmp_path: Path) 
         assert np.array_equal(getattr(one, field), getattr(two, field)), field
 
 
+def test_sensors_only_at_published_steps_give_the_same_physics_and_states_to_the_bit(tmp_path: Path) -> None:
+    """The real-time loop computes MuJoCo's sensors only for the steps whose states it publishes (every 5th):
+    the physics and those states are the same, to the bit, as with the sensors at every step; a read between
+    (a status's fall check) gets the base's pose of its own instant, not of the last sensed step."""
+    sensed, sparse = (make_world(tmp_path, THREE) for _ in range(2))
+    for step in range(200):
+        for world in (sensed, sparse):
+            hold(world, "a", {"left_elbow_joint": 0.01 * step, "waist_pitch_joint": 0.5})
+        sensed.step(1)
+        sparse.step(1, sensed=(step + 1) % 5 == 0)
+        if (step + 1) % 5 == 0:
+            assert np.array_equal(sensed.data.sensordata, sparse.data.sensordata), step
+            assert states(sensed, "a") == states(sparse, "a") and states(sensed, "b") == states(sparse, "b")
+    assert sensed.data.ncon > 0
+    for field in ("qpos", "qvel", "qacc", "qfrc_actuator"):
+        assert np.array_equal(getattr(sensed.data, field), getattr(sparse.data, field)), field
+    hold(sensed, "a", {"left_elbow_joint": 1.5})
+    hold(sparse, "a", {"left_elbow_joint": 1.5})
+    sensed.step(3)
+    sparse.step(3, sensed=False)
+    read = sparse.reader.messages(sparse.take([0] * len(sparse)))[0]  # the engine's read (World.take)
+    assert read.odom == states(sensed, "a").odom, "the base's pose and twist of the instant read"
+    assert read.imu.quat_wxyz == states(sensed, "a").imu.quat_wxyz and read.imu.gyro == states(sensed, "a").imu.gyro
+
+
 def test_a_delayed_command_lands_mid_advance_at_its_step_to_the_bit(tmp_path: Path) -> None:
     """A command delay of 3 steps (ctl/faults' link) on robot a, advances of 10 held steps: each command lands
     at step 3 of its advance, exactly as if it had been sent then (the held steps then run one at a time);

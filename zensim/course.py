@@ -18,6 +18,7 @@ course starts one sim per run there; your controller sees a new sim (`run_id`) a
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import signal
@@ -37,8 +38,10 @@ import zenoh
 from zensim.common.entry import fail, serve
 from zensim.common.logs import setup_logging
 from zensim.common.settings import CommonSettings, ZenohSettings, settings_or_exit
-from zensim.schemas import Keys
+from zensim.common.wire import error_text
+from zensim.schemas import Keys, Variant
 
+from .course_plot import course_svg
 from .scenario import Recording, ScenarioRunner, ctl_faults_key, zenoh_env
 from .scenario_file import AnyEvent, Faults, Loco, Push, Scenario, ScenarioError, Velocity
 from .scenario_score import ScenarioResult
@@ -166,6 +169,9 @@ class CourseSettings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_f
     """Wall time without a new state after which a run stops (a controller that stopped driving the sim), s."""
     start_timeout_s: Annotated[float, msgspec.Meta(gt=0, le=3600)] = 60.0
     """Wall time for each run's sim (and controller) to come up, s."""
+    variants: bool = False
+    """Run each seed on its own variant of the robot: a ctl/reset `randomize` with the run's seed, friction x 0.6-1.4,
+    link masses x 0.9-1.1, centres of mass moved up to 1 cm, motors at 85-100 % (the row says its mass)."""
 
     def __post_init__(self) -> None:
         unknown = [name for name in self.items if name not in ITEM_NAMES]
@@ -180,6 +186,13 @@ class Row(msgspec.Struct, frozen=True, kw_only=True):
     seed: int
     result: ScenarioResult | None = None
     skipped: str = ""
+    variant: Variant | None = None
+    """With --variants: the robot the run drew (its factors and mass)."""
+
+
+VARIANT_RANGES: Final = {"friction": (0.6, 1.4), "mass": (0.9, 1.1), "com_offset_m": 0.01, "motor_strength": (0.85, 1.0)}
+"""--variants: what each seed's robot may differ by (ResetRequest.randomize): a floor wetter or grippier, links a
+tenth lighter or heavier with their centres of mass a little off, motors up to 15 % weak."""
 
 
 class Processes:
@@ -247,15 +260,36 @@ def run_item(session: zenoh.Session, settings: CourseSettings, item: Item, seed:
             if item.needs_faults and "ctl/faults" in str(exc):
                 return Row(item=item.name, seed=seed, skipped="the sim does not serve ctl/faults")
             return Row(item=item.name, seed=seed, skipped=str(exc))
+        variant = None
+        if settings.variants:  # before the scenario starts: a lockstep sim waits at 0 s for its controller
+            try:
+                reply = reset_robot(session, keys, {"randomize": {"seed": seed, **VARIANT_RANGES}})
+            except ValueError as exc:
+                return Row(item=item.name, seed=seed, skipped=f"the variant was refused: {exc}")
+            variant = msgspec.convert(reply["variant"], Variant)
         recording = os.path.join(settings.output_dir, f"{scenario.name}.mcap") if settings.record else ""
         if recording:
             recorder = Recording(recording, settings.robot_id, ZenohSettings(mode="client", connect=(env["ZENSIM_ZENOH_CONNECT"],)))
         result = runner.run(stop, settings.stall_timeout_s, settings.start_timeout_s, recording)
-        return Row(item=item.name, seed=seed, result=result)
+        return Row(item=item.name, seed=seed, result=result, variant=variant)
     finally:
         if recorder is not None:
             recorder.stop()
         processes.stop()
+
+
+def reset_robot(session: zenoh.Session, keys: Keys, request: dict[str, object]) -> dict:
+    """ctl/reset with `request`; its reply.
+
+    Raises:
+        ValueError: no reply, or the sim refused it (its reason).
+    """
+    for reply in session.get(keys.ctl("reset"), payload=json.dumps(request), timeout=10.0):
+        answer = json.loads(reply.ok.payload.to_bytes()) if reply.ok is not None else {"error": error_text(reply.err)}
+        if not answer.get("ok"):
+            raise ValueError(str(answer.get("error"))[:200])
+        return answer
+    raise ValueError("no reply on ctl/reset")
 
 
 def _alive(session: zenoh.Session, key: str, timeout_s: float) -> bool:
@@ -278,6 +312,8 @@ def row_cells(row: Row) -> list[str]:
         return [row.item, str(row.seed), "-", "-", "-", "-", "-", f"skipped: {row.skipped}"]
     recoveries = " / ".join("no" if p.recovered_s is None else f"{p.recovered_s:.2f}" for p in r.pushes) or "-"
     notes = [r.note] if r.note else []
+    if row.variant is not None:
+        notes.append(f"variant {row.variant.seed}: {row.variant.mass_kg:.1f} kg, friction x {row.variant.friction_scale:.2f}")
     notes += [f"{e.type} at {e.at_s:g} s refused: {e.error}" for e in r.events if not e.ok]
     survived = "yes" if r.survived else "-" if r.fell_at_s is None else f"no ({r.fell_at_s:.1f} s)"
     return [row.item, str(row.seed), survived, f"{r.distance_m:.2f}", _fmt(r.tracking_error_m_s, ".3f"), recoveries,
@@ -358,17 +394,12 @@ def run_course(session: zenoh.Session, settings: CourseSettings, stop: threading
     with open(os.path.join(settings.output_dir, "course.json"), "wb") as file:
         file.write(msgspec.json.format(msgspec.json.encode({"controller": settings.controller, "seeds": settings.seeds,
                                                              "wall_s": round(took, 1), "runs": rows})))
+    with open(os.path.join(settings.output_dir, "course.svg"), "w") as file:
+        file.write(course_svg(rows, f"zensim course: controller {settings.controller}, {settings.seeds} seed(s) per item"))
     print()
     print(plain(SUMMARY_HEADER, summary(rows)))
-    print(f"wrote {os.path.join(settings.output_dir, 'course.md')} and course.json "
-          "(no plot image: matplotlib is not installed)" if not _have_matplotlib() else "")
+    print(f"wrote {os.path.join(settings.output_dir, 'course.md')}, course.json and course.svg")
     return 0 if not stop.is_set() else 1
-
-
-def _have_matplotlib() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("matplotlib") is not None
 
 
 def _free_port() -> int:

@@ -4,11 +4,13 @@ Reads:  state/odom, state/sim, state/joints (sim time, fallen, torques), info/ro
 Writes: ctl/push, ctl/band, ctl/loco, ctl/faults (queries), cmd/velocity (puts); the result (JSON) and,
         with --record, an MCAP made by a `zensim record` process it starts and stops
 
-The scenario follows the sim's clock: time 0 is the first state it sees, and an event fires once a state
-at or past its time arrives, real time or lockstep alike (under lockstep the controller is the clock, and
-the event lands within a few of its commands: the result says when each one fired). A velocity is put
-again every 0.5 s of sim time, each good until the next velocity event or the end (so a runner that
-lags a fast lockstep controller never lets it lapse, and a scenario that dies leaves a robot that stops then).
+The scenario follows the sim's clock: time 0 is the first state (or status) it sees. At that moment every
+push, band, faults and velocity event is sent ahead with its sim time (`at_s`): the sim keeps each request for
+the step that starts at its time, the walking controller each velocity for its tick at that time, so under
+lockstep they act at the same step in every run, however the machine is loaded (the same scenario, seed and
+commands give the same recording). One that a real-time sim has already passed when it arrives is sent again
+to act at once (the result says when it did). A velocity holds until the next velocity event or the end. The
+loco verbs fire when a state at or past their time arrives (the first, at 0 s, while a lockstep sim waits).
 Before anything is sent the scenario is checked whole, and so is the robot's side: a `loco` event with no
 walking controller serving ctl/loco, or a `faults` event with a sim that does not serve ctl/faults, is
 refused with one line. The run ends at end_s, or early (said in the result) when the sim stalls for
@@ -40,16 +42,12 @@ from zensim.common.wire import error_text, payload_of
 from zensim.schemas import Codec, DecodeError, JointState, Keys, Odometry, RobotInfo, SimStatus
 
 from .replay import leading_file_argument
-from .scenario_file import Band, Faults, Loco, Push, Scenario, ScenarioError, Velocity, load_scenario
+from .scenario_file import AnyEvent, Band, Faults, Loco, Push, Scenario, ScenarioError, Velocity, load_scenario
 from .scenario_score import EventOutcome, ScenarioResult, Trace, result_lines, score
 
 logger = logging.getLogger("zensim.scenario")
 
 PROG = "zensim scenario"
-VELOCITY_RESEND_S: Final = 0.5
-"""A velocity is put again this often (sim time), each put good until the scenario's next velocity or its end:
-the scenario's own schedule, not the runner's pace (a lockstep controller at 10x real time outruns a loaded
-machine's runner by seconds of sim time), ends it, and a scenario that dies leaves a robot that stops then."""
 QUERY_TIMEOUT_S: Final = 5.0
 MAX_QUEUED: Final = 100_000
 SERVED_WAIT_S: Final = 3.0
@@ -132,6 +130,8 @@ class ScenarioRunner:
         self.joint_names: tuple[str, ...] = ()
         self._codecs: dict[str, Codec[Any]] = {keys.odom: Codec(Odometry), keys.sim_status: Codec(SimStatus), keys.joints: Codec(JointState)}
         self._subscribers: list[zenoh.Subscriber] = []
+        self._fired: list[AnyEvent] = []
+        """The events fired so far, in the order their outcomes were recorded."""
 
     def check_robot(self, timeout_s: float) -> None:
         """The sim answers, and serves every verb the scenario uses; else one line saying what is missing.
@@ -203,8 +203,6 @@ class ScenarioRunner:
         run_id = episode = ""
         started = False
         first_wall: float | None = None
-        velocity: Velocity | None = None
-        next_velocity_put = 0.0
         note = ""
         last_state = time.monotonic()
         timeout_s = start_timeout_s
@@ -225,6 +223,7 @@ class ScenarioRunner:
                 run_id, episode = message.run_id, message.episode
                 if t0 is None:  # a lockstep sim waiting for its first command publishes only its status
                     t0 = message.sim_time_s
+                    self._schedule(pending, t0, outcomes, pushes, trace)
                 if message.fallen:
                     trace.fallen(max(0.0, message.sim_time_s - t0))
                 t = message.sim_time_s - t0
@@ -237,6 +236,7 @@ class ScenarioRunner:
                 assert isinstance(message, Odometry)
                 if t0 is None:
                     t0 = message.sim_time_s
+                    self._schedule(pending, t0, outcomes, pushes, trace)
                 t = message.sim_time_s - t0
                 if trace.times and t < trace.times[-1] - 1e-9:
                     note = f"sim time went back at {trace.times[-1]:.2f} s (a reset)"
@@ -246,15 +246,10 @@ class ScenarioRunner:
                     continue  # a status already took the clock here: the state only adds to the trace
             last_state, timeout_s, now, started = time.monotonic(), stall_timeout_s, t, True
             first_wall = first_wall or last_state
-            fired = self._due(pending, t, t0, outcomes, pushes, trace)
-            if fired is not None:
-                velocity, next_velocity_put = fired, t + VELOCITY_RESEND_S
-            if velocity is not None and t >= next_velocity_put:
-                self.session.put(self.keys.velocity, msgspec.json.encode(velocity.command(self._hold(velocity, t))))
-                next_velocity_put = t + VELOCITY_RESEND_S
+            self._due(pending, t, t0, outcomes, pushes, trace)
             if t >= self.scenario.end_s:
                 break
-        if velocity is not None:  # the scenario's command ends with it
+        if any(isinstance(e, Velocity) for e in self.scenario.events):  # the scenario's command ends with it
             self.session.put(self.keys.velocity, msgspec.json.encode(Velocity(at_s=0).command(0.0)))
         completed = t0 is not None and now >= self.scenario.end_s
         if stop.is_set() and not completed:
@@ -263,6 +258,9 @@ class ScenarioRunner:
             trace.add_odometry(0.0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
             note = note or "no state came"
         wall_s = last_state - first_wall if first_wall is not None else 0.0
+        # In the file's order (the scheduled events were sent before the loco verbs of the same time).
+        place = {id(event): index for index, event in enumerate(self.scenario.events)}
+        outcomes = [o for _, o in sorted(zip(self._fired, outcomes), key=lambda pair: place[id(pair[0])])]
         return score(trace, self.scenario.name, pushes, self.joint_names, completed, outcomes, note, recording, wall_s)
 
     def _hold(self, velocity: Velocity, t: float) -> float:
@@ -270,49 +268,80 @@ class ScenarioRunner:
         later = [e.at_s for e in self.scenario.events if isinstance(e, Velocity) and e.at_s > velocity.at_s]
         return max(0.0, min(later + [self.scenario.end_s]) - t)
 
+    def _schedule(self, pending: list, t0: float, outcomes: list[EventOutcome],
+                  pushes: list[tuple[float, tuple[float, ...], float]], trace: Trace) -> None:
+        """At the start: send every event the sim (push, band, faults) or the walking controller (velocity) can
+        keep for its sim time (`at_s`), so that each acts at the same step in every run; the loco verbs stay in
+        `pending`, fired when a state at or past their time comes."""
+        for event in [e for e in pending if not isinstance(e, Loco)]:
+            pending.remove(event)
+            self._record(event, t0, self._fire(event, t0, t0 + event.at_s), outcomes, pushes, trace)
+
     def _due(self, pending: list, t: float, t0: float, outcomes: list[EventOutcome],
-             pushes: list[tuple[float, tuple[float, ...], float]], trace: Trace) -> Velocity | None:
-        """Fire the events due at scenario time `t`; returns the newest velocity accepted, if one fired."""
-        velocity = None
+             pushes: list[tuple[float, tuple[float, ...], float]], trace: Trace) -> None:
+        """Fire the events due at scenario time `t` (the loco verbs: the rest went ahead, `_schedule`)."""
         while pending and pending[0].at_s <= t:
             event = pending.pop(0)
-            outcome, applied = self._fire(event, t, t0)
-            outcomes.append(outcome)
-            if applied is not None:
-                pushes.append(applied)
-            if isinstance(event, Velocity) and outcome.ok:
-                velocity = event
-                trace.command(t, (event.vx, event.vy, event.wz))
-        return velocity
+            self._record(event, t0, self._fire(event, t0), outcomes, pushes, trace, t)
 
-    def _fire(self, event: Push | Band | Velocity | Loco | Faults, t: float,
-              t0: float) -> tuple[EventOutcome, tuple[float, tuple[float, ...], float] | None]:
-        """Send one event; a refusal is reported in the result, and the run goes on."""
+    def _record(self, event: AnyEvent, t0: float, fired: tuple[EventOutcome, tuple[float, tuple[float, ...], float] | None],
+                outcomes: list[EventOutcome], pushes: list[tuple[float, tuple[float, ...], float]], trace: Trace,
+                t: float | None = None) -> None:
+        outcome, applied = fired
+        outcomes.append(outcome)
+        self._fired.append(event)
+        if applied is not None:
+            pushes.append(applied)
+        if isinstance(event, Velocity) and outcome.ok:
+            trace.command(event.at_s if t is None else t, (event.vx, event.vy, event.wz))
+
+    def _fire(self, event: AnyEvent, t0: float,
+              at_s: float | None = None) -> tuple[EventOutcome, tuple[float, tuple[float, ...], float] | None]:
+        """Send one event, to act at sim time `at_s` (None: now); a refusal is reported in the result, and the run
+        goes on. One the sim refuses because its time has passed (a real-time sim ran on while the request
+        travelled) is sent again to act now, and its outcome says when it did."""
         kind = event.__struct_config__.tag
         applied = None
+        fired_s = event.at_s
         try:
             match event:
                 case Velocity():
-                    self.session.put(self.keys.velocity, msgspec.json.encode(event.command(self._hold(event, t))))
+                    # Held from its time until the next velocity event or the end: one put, no lapse between.
+                    command = msgspec.structs.replace(event.command(self._hold(event, event.at_s)), at_s=at_s)
+                    self.session.put(self.keys.velocity, msgspec.json.encode(command))
                     reply: dict = {"ok": True}
                 case Push():
-                    reply = json.loads(self._query(self.keys.ctl_push, msgspec.to_builtins(event.request())))
+                    reply = self._ctl(self.keys.ctl_push, msgspec.to_builtins(event.request()), at_s)
                     push = reply.get("push") or {}
                     if reply.get("ok"):
                         applied = (float(push["start_s"]) - t0, tuple(push["force_n"]), float(push["duration_s"]))
                 case Band():
-                    reply = json.loads(self._query(self.keys.ctl_band, msgspec.to_builtins(event.request())))
+                    reply = self._ctl(self.keys.ctl_band, msgspec.to_builtins(event.request()), at_s)
                 case Loco():
                     reply = json.loads(self._query(self.keys.ctl_loco, {"verb": event.verb}))
+                    fired_s = float(reply.get("sim_time_s", t0 + event.at_s)) - t0
                 case Faults():
-                    reply = json.loads(self._query(ctl_faults_key(self.keys), event.request))
+                    reply = self._ctl(ctl_faults_key(self.keys), event.request, at_s)
+            if reply.get("scheduled_at_s") is not None:
+                fired_s = float(reply["scheduled_at_s"]) - t0
+            elif not isinstance(event, (Velocity, Loco)) and "sim_time_s" in reply:
+                fired_s = float(reply["sim_time_s"]) - t0
         except (TimeoutError, ValueError, KeyError, TypeError, zenoh.ZError) as exc:
             reply = {"ok": False, "error": str(exc)[:240]}
         ok = bool(reply.get("ok"))
         if not ok:
             logger.warning("%s at %.2f s refused: %s", kind, event.at_s, reply.get("error"))
-        return EventOutcome(type=str(kind), at_s=event.at_s, fired_s=round(t, 4), ok=ok,
+        return EventOutcome(type=str(kind), at_s=event.at_s, fired_s=round(fired_s, 4), ok=ok,
                             error=None if ok else str(reply.get("error"))[:240]), applied
+
+    def _ctl(self, key: str, request: dict, at_s: float | None) -> dict:
+        """A ctl request to act at sim time `at_s` (None: now); one whose time passed on its way goes again, now."""
+        if at_s is None:
+            return json.loads(self._query(key, request))
+        reply = json.loads(self._query(key, {**request, "at_s": at_s}))
+        if not reply.get("ok") and float(reply.get("sim_time_s", 0.0)) > at_s:
+            reply = json.loads(self._query(key, request))
+        return reply
 
 
 def play(session: zenoh.Session, settings: ScenarioSettings, stop: threading.Event, scenario: Scenario,

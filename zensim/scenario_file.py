@@ -45,7 +45,7 @@ from typing import Annotated, Final
 
 import msgspec
 
-from zensim.schemas.messages import BandRequest, BandVerb, LocoVerb, PushRequest, VelocityCommand
+from zensim.schemas.messages import MAX_SCHEDULED, BandRequest, BandVerb, LocoVerb, PushRequest, VelocityCommand
 
 MAX_EVENTS: Final = 10_000
 """Events in one scenario: hours of a busy bench at one event a second; more is a generator's mistake."""
@@ -162,6 +162,13 @@ def decode_scenario(data: bytes, source: str = "the scenario") -> Scenario:
             _check_event(event)
         except (ValueError, TypeError) as exc:
             raise ScenarioError(f"{where}: {exc}") from None
+    # Sent ahead at the start (zensim/scenario.py): the sim keeps MAX_SCHEDULED requests, the walking controller
+    # MAX_SCHEDULED velocities.
+    for what, kinds in (("push, band and faults", (Push, Band, Faults)), ("velocity", (Velocity,))):
+        count = sum(1 for event in scenario.events if isinstance(event, kinds))
+        if count > MAX_SCHEDULED:
+            raise ScenarioError(f"{source}: {count} {what} events, more than the {MAX_SCHEDULED} a robot keeps "
+                                "waiting for their time")
     events = sorted(scenario.events, key=lambda e: e.at_s)  # stable: one instant keeps the file's order
     return msgspec.structs.replace(scenario, events=events)
 
@@ -194,6 +201,8 @@ def _check_event(event: AnyEvent) -> None:
             event.command(1.0)
         case Faults():
             _check_finite_tree(event.request, "request", 0)
+            if "at_s" in event.request:
+                raise ValueError("`request.at_s` is the event's own `at_s` (the scenario sets it); leave it out")
             if len(msgspec.json.encode(event.request)) > MAX_FAULTS_REQUEST_BYTES:
                 raise ValueError(f"`request` is more than {MAX_FAULTS_REQUEST_BYTES} bytes of JSON")
         case Loco():

@@ -20,8 +20,8 @@ describes has no walking controller: the service says so in one line and exits 0
 
 Threads: the controller and its counters have one owner at a time, `_lock`. The state callback (one
 subscriber on `state/*`, so one thread, as in the Unitree adapter) ticks the controller; the cmd/velocity
-callback only keeps the newest raw sample (latest wins: a flood costs a callback each and one decode per
-tick; the rest are counted as shed); a cmd/arms sample is checked on its callback (each refusal counted); ctl/loco is decoded and applied on its callback under
+callback decodes each sample and keeps the newest (latest wins: a flood costs a callback and a decode each;
+the rest are counted as shed), or, one with `at_s`, keeps it for its tick (velocities.py); a cmd/arms sample is checked on its callback (each refusal counted); ctl/loco is decoded and applied on its callback under
 the lock. No lock is held across a zenoh put.
 """
 
@@ -47,10 +47,12 @@ from zensim.schemas import (ArmCommand, Codec, DecodeError, Imu, JointState, Key
                             Odometry, RobotInfo, SimStatus, VelocityCommand, bounded, is_json, topics)
 from zensim.schemas.bounds import MIN_CAP_BYTES, vector_cap_bytes
 from zensim.schemas.codec import Format
+from zensim.schemas.messages import MAX_SCHEDULED
 
 from .arms import ArmRules, arm_blend
 from .controller import FSM_IDS, VERB_FSM, LocoController, Targets
 from .settings import LocoSettings
+from .velocities import ScheduledVelocities
 
 logger = logging.getLogger("zensim.loco")
 
@@ -83,7 +85,11 @@ class LocoService:
         self._joints: JointState | None = None
         self._latest: tuple[JointState, Imu] | None = None
         self._odom: zenoh.Sample | None = None
-        self._velocity: zenoh.Sample | None = None
+        self._velocity: VelocityCommand | None = None
+        """The newest velocity command without `at_s` not yet taken (latest wins)."""
+        self._scheduled = ScheduledVelocities()
+        """Velocity commands with `at_s`, waiting for their tick."""
+        self._last_velocity_now_s = 0.0
         self._seq = 0
         self._last_request_status = 0.0
         self.sim_run = SimRun(robot.info.run_id)
@@ -184,11 +190,28 @@ class LocoService:
     # --- cmd/velocity (latest wins, taken at the next tick) and cmd/arms ---------------------
 
     def _on_velocity(self, sample: zenoh.Sample) -> None:
+        # Decoded as it comes (a few microseconds): one with `at_s` is kept for its tick, not shed by the next.
+        try:
+            command = decode_input(sample, self._velocity_codec, self._small_cap)
+        except DecodeError as exc:
+            error = self._velocity_refusals.refuse(sample.key_expr, str(exc))
+            with self._lock:
+                self.counts["velocity_received"] += 1
+                self.counts["velocity_refused"] += 1
+                self.last_error = error
+            return
         with self._lock:
             self.counts["velocity_received"] += 1
+            if command.at_s is not None and command.at_s > self._now_s():
+                if not self._scheduled.add(command):
+                    self.counts["velocity_refused"] += 1
+                    self.last_error = self._velocity_refusals.refuse(
+                        sample.key_expr, f"{MAX_SCHEDULED} velocity commands already wait for their `at_s`; "
+                                         "this one was not kept")
+                return
             if self._velocity is not None:
                 self.counts["velocity_shed"] += 1
-            self._velocity = sample
+            self._velocity = command
 
     def _on_arm(self, sample: zenoh.Sample) -> None:
         # Each arm command is checked as it comes (not latest-wins): each one refused is counted, and the
@@ -211,16 +234,17 @@ class LocoService:
         return 0.0 if self._latest is None else self._latest[0].sim_time_s
 
     def _take_velocity(self) -> None:
-        sample, self._velocity = self._velocity, None
-        if sample is None:
-            return
-        try:
-            command = decode_input(sample, self._velocity_codec, self._small_cap)
-        except DecodeError as exc:
-            self.counts["velocity_refused"] += 1
-            self.last_error = self._velocity_refusals.refuse(sample.key_expr, str(exc))
-            return
-        self.controller.set_velocity(command.vx, command.vy, command.wz, command.timeout_s, self._now_s())
+        """(under `_lock`, at each state) The newest plain command, then those whose `at_s` came, in order."""
+        now = self._now_s()
+        if now < self._last_velocity_now_s - 1e-9:  # sim time went back (a reset): a new episode
+            self._scheduled.clear()
+        self._last_velocity_now_s = now
+        command, self._velocity = self._velocity, None
+        due = self._scheduled.due(now) if self._scheduled else []
+        for command in ([command] if command is not None else []) + due:
+            # `timeout_s` counts from `at_s`: one that came late (its time past on arrival) ends when it would have.
+            held_s = command.timeout_s if command.at_s is None else max(0.0, command.at_s + command.timeout_s - now)
+            self.controller.set_velocity(command.vx, command.vy, command.wz, held_s, now)
 
     # --- ctl/loco ------------------------------------------------------------------------
 

@@ -113,6 +113,20 @@ class Disturbances:
         Raises:
             DisturbanceError: an unknown body, a force beyond the bound, too many pushes at once.
         """
+        if len(self.pushes) >= MAX_ACTIVE_PUSHES:
+            raise DisturbanceError(f"ctl/push: {MAX_ACTIVE_PUSHES} pushes act already; wait for one to end")
+        push = self.plan(request)
+        self.pushes.append(push)
+        self.pushes_applied += 1
+        self.last_push = state = push.state(float(self.robot.model.opt.timestep))
+        return state
+
+    def plan(self, request: PushRequest) -> Push:
+        """The push `request` asks for, from the next step, checked against the robot but not started.
+
+        Raises:
+            DisturbanceError: an unknown body, a force beyond the bound.
+        """
         body = request.body or self.robot.base_link
         body_id = self.bodies.get(body)
         if body_id is None:
@@ -122,21 +136,24 @@ class Disturbances:
             raise DisturbanceError(
                 f"ctl/push: {request.magnitude_n:g} N is beyond {self.max_push_n:.4g} N, {MAX_PUSH_WEIGHTS:g} x the "
                 f"robot's weight ({self.weight_n:.4g} N): no bench pushes that hard; nothing was applied")
-        if len(self.pushes) >= MAX_ACTIVE_PUSHES:
-            raise DisturbanceError(f"ctl/push: {MAX_ACTIVE_PUSHES} pushes act already; wait for one to end")
         norm = math.sqrt(math.fsum(d * d for d in request.direction))
         fx, fy, fz = (request.magnitude_n * d / norm for d in request.direction)
         force = (fx, fy, fz)
         timestep_s = float(self.robot.model.opt.timestep)
         steps = max(1, round(request.duration_s / timestep_s))
-        push = Push(body, body_id, force, float(self.data.time), steps, steps)
-        self.pushes.append(push)
-        self.pushes_applied += 1
-        self.last_push = state = push.state(timestep_s)
-        return state
+        return Push(body, body_id, force, float(self.data.time), steps, steps)
 
     def band(self, request: BandRequest) -> BandState:
         """Switch, lower, raise or set the band; an empty request changes nothing.
+
+        Raises:
+            DisturbanceError: on in the fixed mode (the base is welded), lower or raise past the bounds.
+        """
+        self.band_on, self.band_length_m = self.band_after(request)
+        return self.band_state()
+
+    def band_after(self, request: BandRequest) -> tuple[bool, float]:
+        """Whether the band is on, and its length, once `request` is carried out now; nothing changes here.
 
         Raises:
             DisturbanceError: on in the fixed mode (the base is welded), lower or raise past the bounds.
@@ -156,10 +173,7 @@ class Disturbances:
                 raise DisturbanceError("ctl/band: the band is at its shortest (0 m): it cannot be raised further")
         if request.length_m is not None:
             length = request.length_m
-        self.band_length_m = min(max(length, 0.0), MAX_BAND_LENGTH_M)
-        if verb in ("on", "off"):
-            self.band_on = verb == "on"
-        return self.band_state()
+        return self.band_on if verb not in ("on", "off") else verb == "on", min(max(length, 0.0), MAX_BAND_LENGTH_M)
 
     def band_state(self) -> BandState:
         return BandState(on=self.band_holds(), anchor=self.anchor, length_m=self.band_length_m,

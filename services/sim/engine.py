@@ -153,7 +153,8 @@ class Engine:
         return broken
 
     def reset_robot(self, index: int, request: ResetRequest, publish: bool = True) -> None:
-        """Reset one robot (a pose, a height, a mode); the other robots, world time and the schedule go on.
+        """Reset one robot (a pose, a height, a mode); the other robots, world time and the pacer's schedule go
+        on. The robot's scheduled requests (`at_s`) are dropped.
 
         A mode other than the world's rebuilds a world of one (one compile); a world of several refuses it.
 
@@ -170,6 +171,7 @@ class Engine:
             sim.check_reset(request, mode_figures(sim.files, request.mode, sim.terrain))  # before anything changes
             self._rebuild(request.mode)
         sim.reset(request)
+        self.world.schedule.drop(index)  # a new episode: the requests it had waiting were the last one's
         self.robots[index].jumped(rebuilt)
         if publish:
             self.publish_states(only=index)
@@ -366,7 +368,8 @@ class Engine:
                     # effect at the next step boundary (the per-step target check in World.step).
                     n = publish_every - world.steps % publish_every
                 with self.physics:
-                    world.step(n)
+                    # Sensors only for a step whose instant may be published (World.step's `sensed`).
+                    world.step(n, sensed=wall_clock_states or (world.steps + n) % publish_every == 0)
                     self.pacer.stepped(n)
                     publish_due = wall_clock_states or world.steps % publish_every == 0
                     if publish_due:

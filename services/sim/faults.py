@@ -193,11 +193,7 @@ class Faults:
             self.state, self.scale, self._locked, self._sensing = None, None, np.zeros(0, int), None
             self.reporting = None
         else:
-            unknown = [fault.joint for fault in request.joints if fault.joint not in self._index]
-            if unknown:
-                known = ", ".join(self.robot.joint_names[:4])
-                raise FaultError(f"ctl/faults: no joint {short_repr(unknown[0])} in {self.robot.name} (its joints: "
-                                 f"{known}, ...; info/robot lists them); nothing was changed")
+            self.check(request)
             nu = self.robot.nu
             scale, offset, locked = np.ones(nu), np.zeros(nu), []
             for fault in request.joints:
@@ -221,6 +217,18 @@ class Faults:
         self._write_model()
         self._rebuild_constraints()
         return self.state
+
+    def check(self, request: FaultsRequest) -> None:
+        """Whether `request` fits the robot; nothing changes here.
+
+        Raises:
+            FaultError: a joint the robot lacks.
+        """
+        unknown = [fault.joint for fault in request.joints if fault.joint not in self._index]
+        if unknown:
+            known = ", ".join(self.robot.joint_names[:4])
+            raise FaultError(f"ctl/faults: no joint {short_repr(unknown[0])} in {self.robot.name} (its joints: "
+                             f"{known}, ...; info/robot lists them); nothing was changed")
 
     def relock(self) -> None:
         """Say where the locked joints are held now (after a reset put the robot in a new pose)."""

@@ -24,6 +24,7 @@ step the others through it. A robot alone (a world of one) still pauses and step
 from __future__ import annotations
 
 import logging
+import math
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -42,16 +43,19 @@ from zensim.schemas import (
     AdvanceReply,
     AppliedCommand,
     BandRequest,
+    BandState,
     Codec,
     CtlReply,
     DecodeError,
     FaultsRequest,
+    FaultsState,
     Keys,
     Mode,
     ModeRequest,
     MotorCommand,
     PauseRequest,
     PushRequest,
+    PushState,
     ResetRequest,
     ResumeRequest,
     RobotInfo,
@@ -69,6 +73,7 @@ from .faults import FaultError
 from .physics import CommandError
 from .world import WHOLE_WORLD
 from .requests import Request, Requests, run_guarded
+from .schedule import ScheduleError
 from .world_states import States
 
 logger = logging.getLogger("zensim.sim")
@@ -217,6 +222,7 @@ class RobotEndpoint:
             faults=sim.faults.state,
             faults_set=sim.faults.changes,
             dropped_commands=sim.link.dropped,
+            scheduled=self.engine.world.schedule.waiting(self.index),
             withheld_states=sim.faults.withheld,
         ))
 
@@ -364,29 +370,54 @@ class RobotEndpoint:
         return self._status_reply()
 
     def _push(self, request: PushRequest) -> CtlReply:
+        disturbances = self.sim.disturbances
         try:
-            push = self.sim.disturbances.push(request)
-        except DisturbanceError as exc:
+            if request.at_s is not None:  # checked now, started at its time (the number of pushes then: its own check)
+                planned = disturbances.plan(request)
+                at_s = self._schedule("push", request.at_s, lambda: self._pushed(disturbances.push(request)))
+                push = msgspec.structs.replace(planned.state(self.sim.timestep_s), start_s=at_s)
+                return msgspec.structs.replace(self._status_reply(), push=push, scheduled_at_s=at_s)
+            push = self._pushed(disturbances.push(request))
+        except (DisturbanceError, ScheduleError) as exc:
             return self._status_reply(ok=False, error=bounded(str(exc)))
-        self.engine.request_log.info("%s: push of %.4g N on %s for %.4g s", self.keys.robot, request.magnitude_n,
-                                     push.body, push.duration_s)
         return msgspec.structs.replace(self._status_reply(), push=push)
 
+    def _pushed(self, push: PushState) -> PushState:
+        self.engine.request_log.info("%s: push of %.4g N on %s for %.4g s", self.keys.robot,
+                                     math.sqrt(math.fsum(f * f for f in push.force_n)), push.body, push.duration_s)
+        return push
+
     def _band(self, request: BandRequest) -> CtlReply:
+        disturbances = self.sim.disturbances
         try:
-            band = self.sim.disturbances.band(request)
-        except DisturbanceError as exc:
+            if request.at_s is not None:
+                disturbances.band_after(request)  # fits now: checked again at its time
+                at_s = self._schedule("band", request.at_s, lambda: self._banded(disturbances.band(request)))
+                return msgspec.structs.replace(self._status_reply(), band=disturbances.band_state(), scheduled_at_s=at_s)
+            band = disturbances.band(request)
+        except (DisturbanceError, ScheduleError) as exc:
             return self._status_reply(ok=False, error=bounded(str(exc)))
         if request.verb is not None or request.length_m is not None:
-            self.engine.request_log.info("%s: band %s, %.3g m", self.keys.robot, "on" if band.on else "off",
-                                         band.length_m)
+            self._banded(band)
         return msgspec.structs.replace(self._status_reply(), band=band)
 
+    def _banded(self, band: BandState) -> None:
+        self.engine.request_log.info("%s: band %s, %.3g m", self.keys.robot, "on" if band.on else "off", band.length_m)
+
     def _faults(self, request: FaultsRequest) -> CtlReply:
+        faults = self.sim.faults
         try:
-            faults = self.sim.faults.request(request)
-        except FaultError as exc:
+            if request.at_s is not None:
+                faults.check(request)
+                at_s = self._schedule("faults", request.at_s, lambda: self._set_faults(request))
+                return msgspec.structs.replace(self._status_reply(), faults=faults.state, scheduled_at_s=at_s)
+            state = self._set_faults(request)
+        except (FaultError, ScheduleError) as exc:
             return self._status_reply(ok=False, error=bounded(str(exc)))
+        return msgspec.structs.replace(self._status_reply(), faults=state)
+
+    def _set_faults(self, request: FaultsRequest) -> FaultsState | None:
+        state = self.sim.faults.request(request)
         if request.verb is not None:
             self.sim.faults_changed()
             link = request.link
@@ -395,7 +426,25 @@ class RobotEndpoint:
                                          "perfect" if link is None else
                                          f"delay {link.command_delay_steps} steps, drop {link.drop_probability:g}, "
                                          f"state delay {link.state_delay_steps} steps")
-        return msgspec.structs.replace(self._status_reply(), faults=faults)
+        return state
+
+    def _schedule(self, verb: str, at_s: float, act: Callable[[], object]) -> float:
+        """Keep a checked request for the step that starts at `at_s` (schedule.py); returns that step's sim time.
+
+        Raises:
+            ScheduleError: `at_s` has passed, or too many requests wait.
+        """
+        world = self.engine.world
+
+        def run() -> None:  # at its time, on the thread that steps: what no longer fits is refused then
+            try:
+                act()
+            except (DisturbanceError, FaultError) as exc:
+                self.sim.last_error = self.request_refusals.refuse(
+                    self.keys.ctl(verb), f"ctl/{verb} scheduled for {at_s:.6g} s, refused at its time: {exc}")
+
+        due = world.schedule.add(self.index, at_s, world.sim_time_s, world.steps, world.timestep_s, run)
+        return world.sim_time_s + (due - world.steps) * world.timestep_s
 
     def _status_reply(self, ok: bool = True, error: str | None = None, off_loop: bool = False) -> CtlReply:
         """The reply to a ctl request; `off_loop` on a thread without the physics lock (from the snapshot)."""

@@ -24,6 +24,7 @@ from zensim.robots.builder import Placement, Robot, build, build_world
 from zensim.schemas.messages import Mode, Terrain
 
 from .physics import MAX_BASE_RISE_M, MAX_BASE_SPEED_M_S, Limits, Simulation, broken_warning
+from .schedule import Schedule
 from .world_file import WorldFile
 from .world_states import FEW_ROBOTS, Frame, StateReader
 
@@ -32,6 +33,8 @@ logger = logging.getLogger("zensim.sim")
 WATCHDOG_CHECK_PERIOD_S = 0.01
 """How often the world asks each robot's command watchdog (its timeout is 0.5 s by default, at least 10 ms):
 once per state period rather than once per robot and step, which cost 5 % of a 32-G1 world's loop."""
+SENSORS_OFF = int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+"""MuJoCo's flag that skips the sensor stages of a step."""
 WHOLE_WORLD = -1
 """World.broken's robot index for a fault of the whole world (MuJoCo's warnings: its data is the world's)."""
 
@@ -67,6 +70,10 @@ class World:
             for robot_id, f, robot in zip(ids, files, robots)}
         self.robots = tuple(self.sims.values())
         """Each robot's Simulation, in order."""
+        self._unsensed = False
+        """The last step ran without MuJoCo's sensors (`step`'s `sensed`)."""
+        self.schedule = Schedule()
+        """ctl requests waiting for their sim time (`at_s`): carried out by `step`, before the step that starts there."""
         self._next_watchdog_check = 0.0
         self._derive()
         mujoco.mj_forward(self.model, self.data)
@@ -135,10 +142,11 @@ class World:
         self.model, self.data = robot.model, mujoco.MjData(robot.model)
         self.mode = mode
         self.steps = 0
+        self.schedule.drop()  # time starts again at 0: what waited was the old episode's
         sim.attach(robot, self.data)
         self._derive()
 
-    def step(self, n: int = 1, held: bool = False) -> None:
+    def step(self, n: int = 1, held: bool = False, sensed: bool = True) -> None:
         """Advance every robot `n` steps together, each with its own targets.
 
         A step runs as MuJoCo's split pair: mj_step2 (actuation, acceleration, integration) then mj_step1
@@ -150,6 +158,12 @@ class World:
         `held`: the targets are the same for all `n` steps (an advance: commands land between advances), so
         MuJoCo runs the middle steps in one call, without handing the GIL back and forth at each
         (mj_step2, mj_step n-1 times, mj_step1 is the step-by-step sequence to the bit, tests/test_world.py).
+
+        `sensed`: MuJoCo's sensors are computed for the last of the `n` steps (False: for none). The sensors
+        only feed the states, read after a step whose instant is published; skipping them at the other steps
+        saves their cost (the feet's contact sensors: 3 us of the G1's 30-40 us step, 8-10 %). The physics
+        does not read them: the steps are the same to the bit. `take` brings the position and velocity
+        sensors up to date for a read after an unsensed step (a status's fall check).
         """
         model, data, sims = self.model, self.data, self.robots
         now = time.monotonic()
@@ -158,22 +172,40 @@ class World:
             self._next_watchdog_check = now + WATCHDOG_CHECK_PERIOD_S
         # A push or the band is a force worked out at every step boundary: then no steps run in one call.
         disturbed = [sim.disturbances for sim in sims if sim.disturbances.active()]
-        # A delayed command in flight (ctl/faults' link) lands at its own step: then no steps run in one call either.
-        batched = held and n > 1 and not disturbed and not any(sim.link.busy() for sim in sims)
+        # A delayed command in flight (ctl/faults' link) lands at its own step, a scheduled request too: then no
+        # steps run in one call either.
+        schedule = self.schedule
+        batched = (held and n > 1 and not disturbed and schedule.next_step >= self.steps + n
+                   and not any(sim.link.busy() for sim in sims))
+        opt = model.opt
+        blind = opt.disableflags | SENSORS_OFF
+        seeing = blind & ~SENSORS_OFF
+        opt.disableflags = blind
         if batched:
             for sim in sims:
                 sim.apply_targets(check_watchdog)
             mujoco.mj_step2(model, data)
-            mujoco.mj_step(model, data, nstep=n - 1)
+            if n > 2:
+                mujoco.mj_step(model, data, nstep=n - 2)
+            if sensed:
+                opt.disableflags = seeing
+            mujoco.mj_step(model, data)
             mujoco.mj_step1(model, data)
         for i in range(0 if batched else n):
+            if schedule.next_step <= self.steps + i:  # requests due before this step (a push, a fault): now
+                schedule.run_due(self.steps + i)
+                disturbed = [sim.disturbances for sim in sims if sim.disturbances.active()]
             for sim in sims:
                 sim.apply_targets(check_watchdog, i)
             check_watchdog = False
             for disturbances in disturbed:
                 disturbances.apply()
+            if sensed and i == n - 1:
+                opt.disableflags = seeing
             mujoco.mj_step2(model, data)
             mujoco.mj_step1(model, data)
+        opt.disableflags = seeing
+        self._unsensed = not sensed
         self.steps += n
         for sim in sims:
             sim.steps += n
@@ -204,7 +236,15 @@ class World:
         return [(index, reason) for index, sim in enumerate(self.robots) if (reason := sim.broken() or "")]
 
     def take(self, seqs: list[int]) -> Frame:
-        """Every robot's figures of this instant, numbered `seqs` (the one state reader)."""
+        """Every robot's figures of this instant, numbered `seqs` (the one state reader).
+
+        After an unsensed step (`step`) the position and velocity sensors (the base's pose and twist, the IMU's
+        orientation and gyro) are computed now; the accelerometer and the feet's contacts, which need the
+        step's acceleration stage, are those of the last sensed step (at most a state period old)."""
+        if self._unsensed:
+            mujoco.mj_sensorPos(self.model, self.data)
+            mujoco.mj_sensorVel(self.model, self.data)
+            self._unsensed = False
         return self.reader.take(self.data, seqs)
 
     def fallen(self, frame: Frame) -> list[bool]:
@@ -215,6 +255,7 @@ class World:
         """mj_resetData of the whole world: time 0, warnings cleared (robots reset next)."""
         mujoco.mj_resetData(self.model, self.data)
         self.steps = 0
+        self.schedule.drop()
         self.resets += 1
 
 
