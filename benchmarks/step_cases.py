@@ -30,12 +30,19 @@ Times = dict[tuple[str, str], list[float]]
 """(case, how) -> CPU microseconds per unit (a physics step, a state read), one per round."""
 
 
-def arguments(doc: str) -> argparse.Namespace:
-    """The command line every step-case benchmark takes: `--steps` per case and round, `--rounds`."""
+def arguments(doc: str, hows: Sequence[str] = ()) -> argparse.Namespace:
+    """The command line every step-case benchmark takes: `--steps` per case and round, `--rounds`; with `hows`,
+    also `--hows`, the ways to time (a comma-separated subset)."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--rounds", type=int, default=15)
-    return parser.parse_args()
+    if hows:
+        parser.add_argument("--hows", default=",".join(hows),
+                            help=f"what to time, of {', '.join(hows)} (read alone: many reads in little time)")
+    args = parser.parse_args()
+    if hows and not set(args.hows.split(",")) <= set(hows):
+        parser.error(f"--hows: of {', '.join(hows)}; got {args.hows}")
+    return args
 
 
 def settled() -> tuple[World, mujoco.MjData]:

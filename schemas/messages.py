@@ -243,6 +243,9 @@ class SimStatus(Message, frozen=True, tag="sim_status", kw_only=True):
     """ctl requests (push, band, faults) accepted with an `at_s` and still waiting for it. A reset drops them (a
     new episode); one that no longer fits when its time comes (a 17th push at once) is refused then, counted
     in `rejected_requests` with its reason in `last_error`."""
+    withheld_states: int = 0
+    """State instants whose state/joints and state/imu were withheld by a sensor dropout (ctl/faults
+    `dropout_probability`), since start."""
 
 
 # --- commands -------------------------------------------------------------
@@ -622,7 +625,12 @@ MAX_DQ_NOISE_RAD_S: Final = 10.0
 MAX_FAULT_SEED: Final = 2**63 - 1
 MAX_DELAY_STEPS: Final = 500
 """Longest command delay, in physics steps: 1 s of the G1's 2 ms steps, beyond any link a controller runs over
-(a delay that long is a dead link, which `drop_probability` 1 is); it bounds the commands held in flight."""
+(a delay that long is a dead link, which `drop_probability` 1 is); it bounds the commands held in flight.
+The longest state delay too: it bounds the past readings kept."""
+MAX_DRIFT_RAD_S: Final = 0.1
+"""Fastest orientation drift, rad/s (6 deg/s: far beyond a MEMS IMU's fused yaw, which drifts a few deg/min)."""
+MAX_DROPOUT_S: Final = 10.0
+"""Longest state dropout, s of sim time."""
 
 
 def _check_in(field: str, value: float, low: float, high: float) -> None:
@@ -657,9 +665,10 @@ class JointFault(Message, frozen=True, tag="joint_fault", kw_only=True, forbid_u
 
 
 class SensorFaults(Message, frozen=True, tag="sensor_faults", kw_only=True, forbid_unknown_fields=True):
-    """Noise and bias on what the robot's sensors report (state/imu, state/joints); the physics is untouched.
+    """Noise, bias, orientation drift and dropouts on what the robot's sensors report (state/imu,
+    state/joints); the physics is untouched, and so are state/odom and state/contacts (the sim's ground truth).
 
-    Noise is Gaussian, drawn afresh for every published state from the request's `seed`.
+    Noise is Gaussian, drawn afresh for every published state from the request's `seed`; so are dropouts.
     """
 
     gyro_noise_std_rad_s: float = 0.0
@@ -674,6 +683,21 @@ class SensorFaults(Message, frozen=True, tag="sensor_faults", kw_only=True, forb
     """Std of the noise on every joint's reported q, rad, in [0, 0.5]."""
     dq_noise_std_rad_s: float = 0.0
     """Std of the noise on every joint's reported dq, rad/s, in [0, 10]."""
+    orientation_drift_rad_s: float = 0.0
+    """Imu.quat_wxyz turns away from the truth at this rate about `orientation_drift_axis`, rad/s, in
+    [-0.1, 0.1]: after t s of sim time (since the fault was set, or the robot last reset) the reported
+    orientation is the true one turned by rate x t about that world axis (the default, z: a yaw drift, what
+    integrating a real gyro does). Imu.gyro and every other figure stay as they are."""
+    orientation_drift_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    """The world-frame axis the drift turns about (normalised by the sim), each in [-1, 1], not all 0:
+    (0, 0, 1) a yaw drift, (1, 0, 0) a tilt about world x."""
+    dropout_probability: float = 0.0
+    """At each state instant outside a dropout, the chance a dropout starts there, in [0, 1], drawn from the
+    request's `seed`: the robot's state/joints and state/imu are withheld (not published, null in a
+    ctl/advance reply) for `dropout_s`. Counted in SimStatus.withheld_states."""
+    dropout_s: float = 0.0
+    """How long a dropout lasts, s of sim time, in [0, 10]: the state where it starts and every later one
+    less than this after it are withheld; 0: that one state alone."""
 
     def __post_init__(self) -> None:
         _check_in("gyro_noise_std_rad_s", self.gyro_noise_std_rad_s, 0.0, MAX_GYRO_NOISE_RAD_S)
@@ -684,11 +708,18 @@ class SensorFaults(Message, frozen=True, tag="sensor_faults", kw_only=True, forb
             _check_in(f"gyro_bias_rad_s[{i}]", value, -MAX_GYRO_NOISE_RAD_S, MAX_GYRO_NOISE_RAD_S)
         for i, value in enumerate(self.accel_bias_m_s2):
             _check_in(f"accel_bias_m_s2[{i}]", value, -MAX_ACCEL_NOISE_M_S2, MAX_ACCEL_NOISE_M_S2)
+        _check_in("orientation_drift_rad_s", self.orientation_drift_rad_s, -MAX_DRIFT_RAD_S, MAX_DRIFT_RAD_S)
+        for i, value in enumerate(self.orientation_drift_axis):
+            _check_in(f"orientation_drift_axis[{i}]", value, -1.0, 1.0)
+        if not any(self.orientation_drift_axis):
+            raise ValueError("`orientation_drift_axis` must not be (0, 0, 0): give the axis the drift turns about")
+        _check_in("dropout_probability", self.dropout_probability, 0.0, 1.0)
+        _check_in("dropout_s", self.dropout_s, 0.0, MAX_DROPOUT_S)
 
 
 class LinkFaults(Message, frozen=True, tag="link_faults", kw_only=True, forbid_unknown_fields=True):
     """What the link between a controller and the robot does to its motor commands (cmd/motors, ctl/advance):
-    it delays them by whole physics steps (sim time) and drops some.
+    it delays them by whole physics steps (sim time) and drops some; and to the states it reads: it delays them.
 
     Delayed and dropped after the sim's checks: a refused command is refused (and counted) as ever; a dropped
     one is counted in SimStatus.dropped_commands. The link keeps the commands' order.
@@ -699,11 +730,20 @@ class LinkFaults(Message, frozen=True, tag="link_faults", kw_only=True, forbid_u
     alike), in [0, 500]; 0: at the next step, as without the fault."""
     drop_probability: float = 0.0
     """Each command accepted is lost with this probability, in [0, 1], drawn from the request's `seed`."""
+    state_delay_steps: int = 0
+    """The robot's state/joints and state/imu (and a ctl/advance reply's) describe the instant this many physics
+    steps earlier, in [0, 500] (their `sim_time_s` is that instant's, their `seq` the publication's): the newest
+    reading at or before it, as states are read only every state period (real time) or advance (lockstep:
+    with lockstep_steps L, a delay of ceil(k / L) advances). Until the fault (or the episode, after a reset)
+    is that old, the first reading since is repeated. state/odom and state/contacts, the sim's ground truth,
+    are not delayed."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.command_delay_steps <= MAX_DELAY_STEPS:
             raise ValueError(f"`command_delay_steps` must be in [0, {MAX_DELAY_STEPS}], got {self.command_delay_steps}")
         _check_in("drop_probability", self.drop_probability, 0.0, 1.0)
+        if not 0 <= self.state_delay_steps <= MAX_DELAY_STEPS:
+            raise ValueError(f"`state_delay_steps` must be in [0, {MAX_DELAY_STEPS}], got {self.state_delay_steps}")
 
 
 class FaultsRequest(Message, frozen=True, tag="faults_request", kw_only=True, forbid_unknown_fields=True):
@@ -718,12 +758,12 @@ class FaultsRequest(Message, frozen=True, tag="faults_request", kw_only=True, fo
     joints: tuple[JointFault, ...] = ()
     """set: the joints' faults, at most one per joint."""
     sensors: SensorFaults | None = None
-    """set: the sensors' noise and bias; null: exact sensors."""
+    """set: the sensors' noise, bias, orientation drift and dropouts; null: exact sensors."""
     seed: int = 0
-    """set: seeds the sensor noise and the link's drops (the same seed and commands give the same states), in
-    [0, 2^63)."""
+    """set: seeds the sensor noise, the dropouts and the link's drops (the same seed and commands give the same
+    states), in [0, 2^63)."""
     link: LinkFaults | None = None
-    """set: the link's command delay and drops; null: a perfect link."""
+    """set: the link's command delay, drops and state delay; null: a perfect link."""
     at_s: float | None = None
     """Sim time to act at (set or clear), s (SimStatus.sim_time_s's clock): the request is checked now and carried out right
     before the first physics step that starts at or after it, the same step in every run (a time already past is
@@ -751,7 +791,7 @@ class FaultsState(Message, frozen=True, tag="faults_state", kw_only=True):
     joints: tuple[JointFault, ...] = ()
     """Each faulty joint's faults."""
     sensors: SensorFaults | None = None
-    """The sensors' noise and bias; null: exact."""
+    """The sensors' noise, bias, orientation drift and dropouts; null: exact."""
     seed: int = 0
     """The noise's seed."""
     set_at_s: float = 0.0
@@ -759,7 +799,7 @@ class FaultsState(Message, frozen=True, tag="faults_state", kw_only=True):
     locked_q: Vector = ()
     """Where each locked joint is held, rad, in the order of `joints`' locked entries."""
     link: LinkFaults | None = None
-    """The link's command delay and drops; null: a perfect link."""
+    """The link's command delay, drops and state delay; null: a perfect link."""
 
 
 # --- description -----------------------------------------------------------
@@ -889,11 +929,12 @@ class AdvanceReply(Message, frozen=True, tag="advance_reply", kw_only=True):
     steps: int = 0
     """Physics steps since the last reset, after the request."""
     joints: JointState | None = None
-    """Joint state of the new instant (as published on state/joints)."""
+    """Joint state of the new instant (as published on state/joints); null while a sensor dropout withholds it
+    (ctl/faults `dropout_probability`: the advance still happened)."""
     odom: Odometry | None = None
     """Base odometry of the new instant (as published on state/odom)."""
     imu: Imu | None = None
-    """IMU reading of the new instant (as published on state/imu)."""
+    """IMU reading of the new instant (as published on state/imu); null while a sensor dropout withholds it."""
     contacts: Contacts | None = None
     """Foot contacts of the new instant (as published on state/contacts); null from a sim that does not say."""
 
@@ -929,7 +970,10 @@ class WorldAdvanceReply(Message, frozen=True, tag="world_advance_reply", kw_only
     steps: int = 0
     """Physics steps since the world's last reset."""
     states: dict[str, RobotStates] = {}
-    """Robot id -> its states of the new instant (every robot of the world; on a robot's own key, that robot's)."""
+    """Robot id -> its states of the new instant (every robot of the world; on a robot's own key, that robot's),
+    but those in `withheld`."""
+    withheld: tuple[str, ...] = ()
+    """The robots whose states of this instant a sensor dropout withholds (ctl/faults): left out of `states`."""
 
 
 MAX_WORLD_ROBOTS = 256

@@ -16,7 +16,7 @@ import pytest
 from support import Latest, ctl
 from test_lockstep_process import advance, scripted_command
 from test_sim_process import robot_info, wait_alive
-from zensim.schemas import AppliedCommand, Keys, SimStatus
+from zensim.schemas import AppliedCommand, Imu, JointState, Keys, Odometry, SimStatus
 
 SHOULDER, ELBOW, WRIST = "left_shoulder_pitch_joint", "left_elbow_joint", "right_elbow_joint"
 
@@ -168,6 +168,21 @@ class TestRefusals:
             ({"verb": "set", "link": {"drop_probability": 1.5}}, "drop_probability"),
             ({"verb": "set", "joints": [good], "link": {"drop_probability": -0.1}}, "drop_probability"),
             ({"verb": "clear", "link": {"command_delay_steps": 3}}, "verb: set"),
+            ({"verb": "set", "sensors": {"orientation_drift_rad_s": 0.2}}, "orientation_drift_rad_s"),
+            ({"verb": "set", "sensors": {"orientation_drift_rad_s": -0.11}}, "orientation_drift_rad_s"),
+            ({"verb": "set", "sensors": {"orientation_drift_rad_s": float("inf")}}, ""),  # JSON has no Infinity
+            ({"verb": "set", "sensors": {"orientation_drift_rad_s": 0.01, "orientation_drift_axis": [0, 0, 0]}},
+             "orientation_drift_axis"),
+            ({"verb": "set", "sensors": {"orientation_drift_axis": [0, 0, 2]}}, "orientation_drift_axis"),
+            ({"verb": "set", "sensors": {"orientation_drift_axis": [0, 1]}}, "orientation_drift_axis"),
+            ({"verb": "set", "sensors": {"dropout_probability": 1.01}}, "dropout_probability"),
+            ({"verb": "set", "joints": [good], "sensors": {"dropout_probability": 0.1, "dropout_s": -0.5}},
+             "dropout_s"),
+            ({"verb": "set", "sensors": {"dropout_s": 11}}, "dropout_s"),
+            ({"verb": "set", "link": {"state_delay_steps": 501}}, "state_delay_steps"),
+            ({"verb": "set", "link": {"state_delay_steps": -1}}, "state_delay_steps"),
+            ({"verb": "set", "link": {"state_delay_steps": 1.5}}, "state_delay_steps"),
+            ({"verb": "clear", "link": {"state_delay_steps": 3}}, "verb: set"),
         ]
         for payload, why in bad:
             reply = ctl(zsession, keys.ctl("faults"), payload)
@@ -255,3 +270,240 @@ class TestLinkFaults:
         assert 10 < len(first) < 50, len(first)
         dropped = 20 + sum(len(taus) - len(run) for run in (first, again, other))
         status.wait(lambda s: s.dropped_commands == dropped, what=f"{dropped} drops counted")
+
+
+def turn_between(seen: list[float], real: list[float]) -> np.ndarray:
+    """The rotation q_seen * conj(q_real), wxyz, w >= 0: what turned the true orientation into the reported one
+    (world frame)."""
+    w1, x1, y1, z1 = seen
+    w2, x2, y2, z2 = real[0], -real[1], -real[2], -real[3]
+    turn = np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+    return turn if turn[0] >= 0 else -turn
+
+
+def yaw(quat_wxyz: list[float]) -> float:
+    w, x, y, z = quat_wxyz
+    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+class TestOrientationDrift:
+    def test_the_imu_turns_away_from_the_truth_at_the_rate_from_the_set_and_each_reset_and_clear_ends_it(
+            self, start_service, zsession, robot_id) -> None:
+        ids = [robot_id + "true", robot_id + "drifting"]
+        for rid in ids:
+            start_service("sim", "--clock", "lockstep", env={"ZENSIM_ROBOT_ID": rid})
+        truth, faulty = Keys(ids[0]), Keys(ids[1])
+        for keys in (truth, faulty):
+            wait_alive(zsession, keys)
+        info = robot_info(zsession, truth)
+        rate = -0.08
+        reply = ctl(zsession, faulty.ctl("faults"), {"verb": "set", "sensors": {"orientation_drift_rad_s": rate}})
+        assert reply["ok"] is True and reply["faults"]["sensors"]["orientation_drift_rad_s"] == rate, reply
+        since = reply["faults"]["set_at_s"]
+        q = info["default_q"][info["mode"]]
+        for k in range(60):  # the same commands to both (the truth's feedback): the same physics
+            cmd = scripted_command(k, info, q)
+            real, seen = advance(zsession, truth, cmd), advance(zsession, faulty, cmd)
+            q = real["joints"]["q"]
+            assert seen["odom"] == real["odom"] and seen["joints"] == real["joints"], "the physics is untouched"
+            assert seen["imu"]["gyro"] == real["imu"]["gyro"], "only the orientation drifts"
+            angle = rate * (seen["imu"]["sim_time_s"] - since)
+            turn = turn_between(seen["imu"]["quat_wxyz"], real["imu"]["quat_wxyz"])
+            assert turn == pytest.approx([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)], abs=1e-9), k
+            drift = yaw(seen["imu"]["quat_wxyz"]) - yaw(real["imu"]["quat_wxyz"])
+            assert (drift - angle + np.pi) % (2 * np.pi) - np.pi == pytest.approx(0.0, abs=1e-6)
+        assert abs(angle) > 0.05, "enough drift that a check without it fails"
+        # A reset is a new episode: the drift counts from it.
+        reset = ctl(zsession, faulty.ctl("reset"), {})
+        ctl(zsession, truth.ctl("reset"), {})
+        real, seen = advance(zsession, truth, command(info)), advance(zsession, faulty, command(info))
+        angle = rate * (seen["imu"]["sim_time_s"] - reset["sim_time_s"])
+        assert 0 < abs(angle) < 0.01
+        assert turn_between(seen["imu"]["quat_wxyz"], real["imu"]["quat_wxyz"]) == pytest.approx(
+            [np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)], abs=1e-9)
+        # A tilt about world x instead.
+        assert ctl(zsession, faulty.ctl("faults"), {"verb": "set", "sensors": {
+            "orientation_drift_rad_s": 0.1, "orientation_drift_axis": [2e-1, 0, 0]}})["ok"]
+        for _ in range(5):
+            real, seen = advance(zsession, truth, command(info)), advance(zsession, faulty, command(info))
+        turn = turn_between(seen["imu"]["quat_wxyz"], real["imu"]["quat_wxyz"])
+        assert turn[2:] == pytest.approx([0.0, 0.0], abs=1e-12) and turn[1] > 0
+        assert ctl(zsession, faulty.ctl("faults"), {"verb": "clear"})["faults"] is None
+        real, seen = advance(zsession, truth, command(info)), advance(zsession, faulty, command(info))
+        assert seen["imu"] == real["imu"], "cleared: the truth again, to the bit"
+
+
+def withheld_runs(replies: list[dict]) -> list[int]:
+    """The lengths of the runs of consecutive replies without joints (withheld)."""
+    runs, length = [], 0
+    for reply in replies:
+        if reply["joints"] is None:
+            length += 1
+        elif length:
+            runs.append(length)
+            length = 0
+    return runs + ([length] if length else [])
+
+
+class TestDropouts:
+    """One physics step per advance (--lockstep-steps 1): a dropout of 10 ms withholds 5 states."""
+
+    def test_states_are_withheld_for_the_dropout_s_counted_and_the_seed_picks_when(
+            self, start_service, zsession, robot_id) -> None:
+        keys = Keys(robot_id)
+        status = Latest(zsession, keys.sim_status, SimStatus)
+        joints, imu, odom = (Latest(zsession, key, message) for key, message in
+                             ((keys.joints, JointState), (keys.imu, Imu), (keys.odom, Odometry)))
+        start_service("sim", "--clock", "lockstep", "--lockstep-steps", "1", "--mode", "fixed")
+        wait_alive(zsession, keys)
+        info = robot_info(zsession, keys)
+        odom.wait(what="the first state")
+        before = (joints.count, imu.count, odom.count)
+
+        def run(seed: int, n: int = 150) -> list[dict]:
+            reply = ctl(zsession, keys.ctl("faults"), {"verb": "set", "seed": seed, "sensors": {
+                "dropout_probability": 0.05, "dropout_s": 0.01}})
+            assert reply["ok"] is True and reply["faults"]["sensors"]["dropout_s"] == 0.01, reply
+            replies = [advance(zsession, keys, command(info)) for _ in range(n)]
+            assert all(r["ok"] and r["odom"] is not None for r in replies), "the advance and the truth go on"
+            assert all((r["joints"] is None) == (r["imu"] is None) for r in replies), "joints and imu together"
+            return replies
+
+        first, again, other = run(3), run(3), run(4)
+        pattern = [[r["joints"] is None for r in replies] for replies in (first, again, other)]
+        assert pattern[0] == pattern[1], "one seed: the same states withheld"
+        assert pattern[0] != pattern[2], "another seed, other dropouts"
+        runs = withheld_runs(first)
+        assert runs and all(length % 5 == 0 for length in runs), runs  # 10 ms of 2 ms steps, back to back maybe
+        withheld = sum(sum(p) for p in pattern)
+        assert 0 < withheld < 3 * 150 / 2
+        seqs = [r["odom"]["seq"] for r in first if r["joints"] is not None]
+        assert [r["joints"]["seq"] for r in first if r["joints"] is not None] == seqs, "a gap in seq shows a dropout"
+        status.wait(lambda s: s.withheld_states == withheld, what=f"{withheld} withheld states counted")
+        odom.wait(lambda _: odom.count == before[2] + 450, what="every odometry (ground truth: never withheld)")
+        joints.wait(lambda _: joints.count == before[0] + 450 - withheld, what="the joints not withheld")
+        assert imu.count == before[1] + 450 - withheld
+        # Cleared: every state again.
+        assert ctl(zsession, keys.ctl("faults"), {"verb": "clear"})["faults"] is None
+        assert all(advance(zsession, keys, command(info))["joints"] is not None for _ in range(20))
+        status.wait(lambda s: s.faults is None and s.withheld_states == withheld, what="no more withheld")
+
+
+class TestStateDelay:
+    """One physics step per advance (--lockstep-steps 1): a state delay of k steps is k advances."""
+
+    def test_a_state_delay_of_k_steps_gives_the_state_of_k_advances_ago_and_clear_ends_it(
+            self, start_service, zsession, robot_id) -> None:
+        ids = [robot_id + "true", robot_id + "late"]
+        for rid in ids:
+            start_service("sim", "--clock", "lockstep", "--lockstep-steps", "1", env={"ZENSIM_ROBOT_ID": rid})
+        truth, faulty = Keys(ids[0]), Keys(ids[1])
+        for keys in (truth, faulty):
+            wait_alive(zsession, keys)
+        info = robot_info(zsession, truth)
+        k = 4
+        reply = ctl(zsession, faulty.ctl("faults"), {"verb": "set", "link": {"state_delay_steps": k}})
+        assert reply["ok"] is True and reply["faults"]["link"]["state_delay_steps"] == k, reply
+        q = info["default_q"][info["mode"]]
+        reals, seens = [], []
+        for n in range(40):
+            cmd = scripted_command(n, info, q)
+            real, seen = advance(zsession, truth, cmd), advance(zsession, faulty, cmd)
+            q = real["joints"]["q"]
+            reals.append(real)
+            seens.append(seen)
+            assert seen["odom"] == real["odom"], "the ground truth is not delayed"
+            old = reals[max(0, n - k)]  # the first reading since the set until one is k steps old
+            for name in ("joints", "imu"):
+                assert seen[name]["seq"] == real[name]["seq"], "numbered as published"
+                assert {**seen[name], "seq": 0} == {**old[name], "seq": 0}, (n, name)
+        assert seens[-1]["joints"]["sim_time_s"] == pytest.approx(reals[-1]["sim_time_s"] - k * 0.002, abs=1e-9)
+        assert reals[-1]["joints"]["q"] != reals[-1 - k]["joints"]["q"], "the robot moved: the check can fail"
+        assert ctl(zsession, faulty.ctl("faults"), {"verb": "clear"})["faults"] is None
+        cmd = command(info)
+        real, seen = advance(zsession, truth, cmd), advance(zsession, faulty, cmd)
+        assert seen["joints"] == real["joints"] and seen["imu"] == real["imu"], "cleared: this instant's again"
+
+    def test_with_several_steps_per_advance_the_delay_is_whole_advances_rounded_up(
+            self, start_service, zsession, robot_id) -> None:
+        keys = Keys(robot_id)
+        start_service("sim", "--clock", "lockstep", "--lockstep-steps", "5", "--mode", "fixed")
+        wait_alive(zsession, keys)
+        info = robot_info(zsession, keys)
+        assert ctl(zsession, keys.ctl("faults"), {"verb": "set", "link": {"state_delay_steps": 7}})["ok"]
+        for _ in range(6):
+            reply = advance(zsession, keys, command(info))
+        # 7 steps back from the newest instant lies between two advances: the reading at or before, 2 advances.
+        assert reply["joints"]["sim_time_s"] == pytest.approx(reply["sim_time_s"] - 10 * 0.002, abs=1e-9)
+        assert reply["odom"]["sim_time_s"] == pytest.approx(reply["sim_time_s"], abs=1e-12)
+        # A reset is a new episode: no reading of the last one comes after it (the reset's own is repeated).
+        reset = ctl(zsession, keys.ctl("reset"), {})
+        for _ in range(2):
+            assert advance(zsession, keys, command(info))["joints"]["sim_time_s"] == reset["sim_time_s"]
+        assert advance(zsession, keys, command(info))["joints"]["sim_time_s"] > reset["sim_time_s"]
+
+
+def test_a_world_advance_leaves_a_withheld_robot_out_and_delays_another_and_the_rest_are_untouched(
+        start_service, zsession, robot_id, tmp_path) -> None:
+    """A world of three G1s under lockstep (its states put from a thread of their own): robot 0 in a dropout that
+    never ends, robot 1 with a state delay, robot 2 without a fault."""
+    import zenoh
+
+    from support import wait_for
+    from zensim.schemas import Codec, WorldAdvanceReply, WorldAdvanceRequest
+
+    ids = [f"{robot_id}-{k}" for k in range(3)]
+    path = tmp_path / "three.toml"
+    path.write_text(f'id = "{robot_id}-w"\n' + "".join(
+        f'[[robots]]\nid = "{rid}"\nxy = [{1.2 * k}, 0.0]\n' for k, rid in enumerate(ids)))
+    joints = Latest(zsession, Keys(ids[0]).joints, JointState)
+    odom = Latest(zsession, Keys(ids[0]).odom, Odometry)
+    status = Latest(zsession, Keys(ids[0]).sim_status, SimStatus)
+    start_service("sim", "--world", str(path), "--clock", "lockstep")
+    wait_for(lambda: list(zsession.liveliness().get(Keys(ids[-1]).alive("sim"), timeout=1)), 60, "the world up")
+    assert ctl(zsession, Keys(ids[0]).ctl("faults"), {"verb": "set", "sensors": {
+        "dropout_probability": 1.0, "dropout_s": 10.0}})["ok"]
+    assert ctl(zsession, Keys(ids[1]).ctl("faults"), {"verb": "set", "link": {"state_delay_steps": 20}})["ok"]
+    odom.wait(what="a first odometry")
+    joints_before, odom_before = joints.count, odom.count
+    key, request_codec, reply_codec = Keys(f"{robot_id}-w").world_advance, Codec(WorldAdvanceRequest), Codec(WorldAdvanceReply)
+    replies = []
+    for _ in range(5):
+        got = list(zsession.get(key, payload=request_codec.encode(WorldAdvanceRequest()),
+                                encoding=zenoh.Encoding("application/msgpack"), timeout=10))
+        reply = reply_codec.decode(got[0].ok.payload.to_bytes(), "application/msgpack")
+        assert reply.ok, reply.error
+        assert reply.withheld == (ids[0],) and sorted(reply.states) == sorted(ids[1:]), reply.withheld
+        replies.append(reply)
+    late, on_time = replies[-1].states[ids[1]], replies[-1].states[ids[2]]
+    assert on_time.joints.sim_time_s == on_time.odom.sim_time_s == replies[-1].sim_time_s
+    lockstep_steps = round((replies[-1].sim_time_s - replies[-2].sim_time_s) / 0.002)
+    back = -(-20 // lockstep_steps) * lockstep_steps * 0.002  # whole advances, rounded up
+    assert late.joints.sim_time_s == pytest.approx(replies[-1].sim_time_s - back, abs=1e-9)
+    assert late.imu.sim_time_s == late.joints.sim_time_s and late.odom.sim_time_s == replies[-1].sim_time_s
+    odom.wait(lambda _: odom.count >= odom_before + 5, what="robot 0's odometry (never withheld)")
+    status.wait(lambda s: s.withheld_states >= 5, what="robot 0's withheld states counted")
+    assert joints.count == joints_before, "robot 0's joints withheld"
+
+
+def test_at_real_time_a_state_delay_hands_out_the_newest_reading_at_or_before_k_steps_back(
+        start_service, zsession, robot_id) -> None:
+    """The real-time clock, states every 10 ms of sim time (5 steps): a delay of 7 steps (14 ms) gives the
+    reading 2 state periods back (the newest at or before), a delay of 10 exactly 2; odometry is never late."""
+    keys = Keys(robot_id)
+    joints, odom = Latest(zsession, keys.joints, JointState), Latest(zsession, keys.odom, Odometry)
+    joints.keep_history = odom.keep_history = True
+    start_service("sim", "--mode", "fixed")
+    wait_alive(zsession, keys)
+    for k, back_s in ((7, 0.02), (10, 0.02)):
+        reply = ctl(zsession, keys.ctl("faults"), {"verb": "set", "link": {"state_delay_steps": k}})
+        assert reply["ok"], reply
+        since = reply["sim_time_s"]
+        odom.wait(lambda o: o.sim_time_s > since + 0.2, what="0.2 s of states")  # noqa: B023
+        truth = {o.seq: o.sim_time_s for o in odom.history}
+        late = [(truth[j.seq], j.sim_time_s) for j in joints.history
+                if j.seq in truth and j.sim_time_s > since + back_s + 0.005]
+        assert len(late) > 10
+        for now, then in late:
+            assert now - then == pytest.approx(back_s, abs=1e-9), (k, now, then)

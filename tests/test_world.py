@@ -9,7 +9,7 @@ import pytest
 
 from support import TWO_JOINT_ARM
 from zensim.common.session import StartupError
-from zensim.schemas import FaultsRequest, LinkFaults, MotorCommand
+from zensim.schemas import FaultsRequest, LinkFaults, MotorCommand, SensorFaults
 from zensim.sim.mjdata import read_base, read_imu
 from zensim.sim.service import load_world
 from zensim.sim.settings import SimSettings
@@ -195,3 +195,35 @@ def test_a_delayed_command_lands_mid_advance_at_its_step_to_the_bit(tmp_path: Pa
     assert one.time == two.time
     for field in ("qpos", "qvel", "qacc", "qfrc_actuator"):
         assert np.array_equal(getattr(one, field), getattr(two, field)), field
+
+
+def test_drift_delay_and_dropouts_act_on_their_own_robot_and_a_delay_keeps_one_reading_per_instant(
+        tmp_path: Path) -> None:
+    """Robot a in a dropout that never ends, b with a state delay of 3 steps, the arm without a fault, in one
+    world read by its one reader: each fault stays with its robot; states read again and again at one instant
+    (a paused sim publishes on) keep one reading of it; a reset's states (`only`) touch no other robot's."""
+    world = make_world(tmp_path, THREE)
+    a, b, arm = (world.sims[name] for name in ("a", "b", "arm"))
+    a.faults.request(FaultsRequest(verb="set", sensors=SensorFaults(dropout_probability=1.0)))
+    b.faults.request(FaultsRequest(verb="set", link=LinkFaults(state_delay_steps=3)))
+    start = world.sim_time_s
+    for _ in range(100):
+        states = world.reader.read(world.data, [1, 1, 1])
+    assert len(b.faults._ring) == 1, "one instant, one reading"
+    assert a.faults.withheld == 100
+    times = []
+    for _ in range(6):
+        world.step(1)
+        st_a, st_b, st_arm = world.reader.read(world.data, [2, 2, 2])
+        assert st_a.joints is None and st_a.imu is None and st_a.odom.sim_time_s == world.sim_time_s
+        assert st_arm.joints is not None and st_arm.joints.sim_time_s == world.sim_time_s
+        assert st_b.joints is not None and st_b.imu is not None and st_b.odom.sim_time_s == world.sim_time_s
+        times.append(st_b.joints.sim_time_s)
+    dt = world.timestep_s
+    assert times == pytest.approx([start, start, start, start + dt, start + 2 * dt, start + 3 * dt], abs=1e-12)
+    assert len(b.faults._ring) == 4, "k + 1 readings at most"
+    withheld, ring = a.faults.withheld, list(b.faults._ring)
+    only_arm = world.reader.messages(world.take([3, 3, 3]), only=2)
+    assert only_arm[0].joints is not None, "a reset's states of another robot: a's dropout draws nothing"
+    assert a.faults.withheld == withheld and list(b.faults._ring) == ring
+    assert states[2].joints is not None

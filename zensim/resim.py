@@ -109,6 +109,7 @@ class Divergence:
         self.compared += 1
         now = read_states(world)
         mine, mine_odom = now.joints, now.odom
+        assert mine is not None  # a resim's world has no faults: no state is withheld
         if joints is not None:
             self.joint_rad = max(self.joint_rad, float(np.max(np.abs(np.subtract(mine.q, joints.q)))))
         if odom is not None:
@@ -179,6 +180,7 @@ def place(world: World, joints: JointState, odom: Odometry) -> bool:
     sim.reset(ResetRequest(q=tuple(joints.q), base_height_m=odom.pos[2]))
     now = read_states(world)
     mine, mine_odom = now.joints, now.odom
+    assert mine is not None  # a resim's world has no faults: no state is withheld
     if joints.sim_time_s == 0.0 and list(mine.q) == list(joints.q) \
             and list(mine_odom.pos) == list(odom.pos) and list(mine_odom.quat_wxyz) == list(odom.quat_wxyz):
         return True

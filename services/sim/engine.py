@@ -233,9 +233,9 @@ class Engine:
             self.publisher.submit(self._take_frame())
             return
         self.seqs[only] += 1
-        states = self.world.reader.messages(self.world.take(self.seqs))[only]
-        self.publisher.drain()
-        self.robots[only].put_states(states)
+        frame = self.world.take(self.seqs)
+        self.publisher.drain()  # first: the frames before it go through the faults' report before this one does
+        self.robots[only].put_states(self.world.reader.messages(frame, only)[only])
 
     def publish_statuses(self, rtf: float, waiting: bool = False) -> None:
         """Every robot's SimStatus (the world's one pacer's jitter, read once, told to every robot), and every

@@ -247,6 +247,7 @@ class Simulation:
         self.fallen_since = None
         self.disturbances.clear_pushes()  # a new episode: no push of the last one acts on; the band holds on
         self.faults.relock()  # the faults stay; a locked joint is held in the new pose
+        self.faults.new_episode()  # the drift, state delay and dropouts start over
         self._apply(self._targets)
         if self.robot.slot is None:  # a robot of a world: mjdata.reset ran its own forward, the others untouched
             mujoco.mj_forward(self.robot.model, self.data)

@@ -176,9 +176,12 @@ class RobotEndpoint:
     # --- the engine's side (RobotPort) ------------------------------------------------------------
 
     def put_states(self, states: States) -> None:
-        self.pub_joints.put(states.joints)
+        """Put one instant's states; joints and imu not while a sensor dropout withholds them (None)."""
+        if states.joints is not None:
+            self.pub_joints.put(states.joints)
         self.pub_odom.put(states.odom)
-        self.pub_imu.put(states.imu)
+        if states.imu is not None:
+            self.pub_imu.put(states.imu)
         self.pub_contacts.put(states.contacts)
 
     def publish_status(self, rtf: float, fallen: bool, jitter_p99_s: float, waiting: bool) -> None:
@@ -220,6 +223,7 @@ class RobotEndpoint:
             faults_set=sim.faults.changes,
             dropped_commands=sim.link.dropped,
             scheduled=self.engine.world.schedule.waiting(self.index),
+            withheld_states=sim.faults.withheld,
         ))
 
     def jumped(self, rebuilt: bool) -> None:
@@ -418,9 +422,10 @@ class RobotEndpoint:
             self.sim.faults_changed()
             link = request.link
             self.engine.request_log.info("%s: faults %s (%d joints, sensors %s, link %s)", self.keys.robot, request.verb,
-                                         len(request.joints), "noisy" if request.sensors else "exact",
+                                         len(request.joints), "faulty" if request.sensors else "exact",
                                          "perfect" if link is None else
-                                         f"delay {link.command_delay_steps} steps, drop {link.drop_probability:g}")
+                                         f"delay {link.command_delay_steps} steps, drop {link.drop_probability:g}, "
+                                         f"state delay {link.state_delay_steps} steps")
         return state
 
     def _schedule(self, verb: str, at_s: float, act: Callable[[], object]) -> float:

@@ -206,10 +206,11 @@ class WorldEndpoint:
         engine.advance(checked)
         states = engine.read_states()  # published once the client has its reply
         world = engine.world
+        mine = [(robot, robot_states) for robot, robot_states in zip(world.sims, states) if only is None or robot == only]
         return WorldAdvanceReply(ok=True, sim_time_s=world.sim_time_s, steps=world.steps,
                                  states={robot: RobotStates(joints=j, odom=o, imu=i, contacts=c)
-                                         for robot, (j, o, i, c) in zip(world.sims, states)
-                                         if only is None or robot == only}), states
+                                         for robot, (j, o, i, c) in mine if j is not None and i is not None},
+                                 withheld=tuple(robot for robot, (j, _, i, _) in mine if j is None or i is None)), states
 
     def _advance_refusal(self, error: str) -> WorldAdvanceReply:
         now = self.snapshot

@@ -9,6 +9,11 @@ runs on the other core while the loop steps the next instant, instead of after i
 
 Order is kept: frames go out oldest first, and a state put by any other path (a reset, ctl/step,
 world/advance) waits for the frames before it (`StatePublisher.drain`), so `seq` never goes back.
+
+The sensor faults (faults.py) act in `messages`: noise and bias on the arrays (`observe`), then drift, state
+delay and dropouts on each robot's finished JointState and Imu (`report`, with the faults' figures the frame
+took at its instant). A delay hands out an older instant's messages, a dropout None for both (not put);
+state/odom and state/contacts are the truth, untouched.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from zensim.common.logs import RateLimitedLog
 from zensim.robots.builder import FOOT_NET_SUFFIX, FOOT_POINTS_SUFFIX
 from zensim.schemas import Contacts, Imu, JointState, Odometry
 
+from .faults import Reporting
 from .physics import Simulation
 
 logger = logging.getLogger("zensim.sim")
@@ -35,9 +41,11 @@ logger = logging.getLogger("zensim.sim")
 class States(NamedTuple):
     """One robot's messages of one instant."""
 
-    joints: JointState
+    joints: JointState | None
+    """None: withheld by a sensor dropout (ctl/faults), with `imu`; not published."""
     odom: Odometry
-    imu: Imu
+    imu: Imu | None
+    """None: withheld by a sensor dropout, with `joints`."""
     contacts: Contacts
 
 MAX_BACKLOG = 10
@@ -64,6 +72,8 @@ class Frame:
     """Every robot's feet, in turn: contacts found and the net force the foot exerts (world), one row per foot."""
     feet_normal_n: np.ndarray
     """Every robot's feet, in turn: the sum of the foot's contact points' normal forces, N."""
+    reports: tuple[Reporting | None, ...] = ()
+    """Each robot's drift, state delay and dropouts at this instant (faults.py); empty: none has any."""
 
     def tilts_rad(self) -> np.ndarray:
         """Each robot's base tilt from upright, rad (as mjdata.base_tilt_rad, for all robots at once)."""
@@ -105,18 +115,22 @@ class StateReader:
     def take(self, data: mujoco.MjData, seqs: Sequence[int]) -> Frame:
         """(physics lock held) This instant's figures; fancy indexing copies, so the frame outlives the step."""
         sensordata = data.sensordata
+        reports = tuple(faults.reporting for faults in self.faults)
         return Frame(float(data.time), tuple(seqs), data.qpos[self.qpos], data.qvel[self.dof],
                      data.qfrc_actuator[self.dof], {name: sensordata[idx] for name, idx in self.sensors.items()},
-                     sensordata[self.feet_net], sensordata[self.feet_normals].sum(axis=1))
+                     sensordata[self.feet_net], sensordata[self.feet_normals].sum(axis=1),
+                     reports if any(report is not None for report in reports) else ())
 
-    def messages(self, frame: Frame) -> list[States]:
-        """Each robot's messages of a frame, in the order of the sims given (any thread)."""
+    def messages(self, frame: Frame, only: int | None = None) -> list[States]:
+        """Each robot's messages of a frame, in the order of the sims given (any thread). `only`: robot `only`'s
+        alone are going out (a reset's): the others' sensor faults draw nothing and keep no reading of it."""
         t, s = frame.sim_time_s, frame.sensors
         q, dq, gyro_rows, accel_rows = frame.q, frame.dq, s["imu_gyro"], s["imu_accel"]
         if any(faults.senses() for faults in self.faults):  # what the faulty sensors report, not the truth
             q, dq, gyro_rows, accel_rows = q.copy(), dq.copy(), gyro_rows.copy(), accel_rows.copy()
             for i, ((a, b), faults) in enumerate(zip(self.spans, self.faults)):
-                faults.observe(q[a:b], dq[a:b], gyro_rows[i], accel_rows[i])
+                if only is None or i == only:
+                    faults.observe(q[a:b], dq[a:b], gyro_rows[i], accel_rows[i])
         q, dq, tau = q.tolist(), dq.tolist(), frame.tau.tolist()
         ang_body = _rotate_by_inverse(s["base_quat"], s["base_angvel"])
         pos, quat, lin, ang = s["base_pos"].tolist(), s["base_quat"].tolist(), s["base_linvel"].tolist(), ang_body.tolist()
@@ -125,14 +139,22 @@ class StateReader:
         found = frame.feet_net[:, 0]
         points, touching = found.astype(int).tolist(), (found > 0).tolist()
         force, normal = (-frame.feet_net[:, 1:]).tolist(), frame.feet_normal_n.tolist()
-        return [States(JointState(sim_time_s=t, seq=seq, q=q[a:b], dq=dq[a:b], tau=tau[a:b]),
-                       Odometry(sim_time_s=t, seq=seq, pos=pos[i], quat_wxyz=quat[i], lin_vel_world=lin[i],
-                                ang_vel_body=ang[i]),
-                       Imu(sim_time_s=t, seq=seq, quat_wxyz=imu_quat[i], gyro=gyro[i], accel=accel[i]),
-                       Contacts(sim_time_s=t, seq=seq, links=links, in_contact=tuple(touching[f:g]),
-                                normal_force_n=normal[f:g], force_world=tuple(force[f:g]), points=tuple(points[f:g])))
-                for i, ((a, b), (f, g), links, seq) in enumerate(zip(self.spans, self.foot_spans, self.foot_links,
-                                                                    frame.seqs))]
+        states = [States(JointState(sim_time_s=t, seq=seq, q=q[a:b], dq=dq[a:b], tau=tau[a:b]),
+                         Odometry(sim_time_s=t, seq=seq, pos=pos[i], quat_wxyz=quat[i], lin_vel_world=lin[i],
+                                  ang_vel_body=ang[i]),
+                         Imu(sim_time_s=t, seq=seq, quat_wxyz=imu_quat[i], gyro=gyro[i], accel=accel[i]),
+                         Contacts(sim_time_s=t, seq=seq, links=links, in_contact=tuple(touching[f:g]),
+                                  normal_force_n=normal[f:g], force_world=tuple(force[f:g]), points=tuple(points[f:g])))
+                  for i, ((a, b), (f, g), links, seq) in enumerate(zip(self.spans, self.foot_spans, self.foot_links,
+                                                                      frame.seqs))]
+        # Drift, state delay and dropouts: on the finished messages (a delay hands out an older instant's whole).
+        for i, reporting in enumerate(frame.reports):
+            if reporting is not None and (only is None or i == only):
+                joints, odom, imu, contacts = states[i]
+                assert joints is not None and imu is not None  # built just above
+                joints, imu = self.faults[i].report(joints, imu, reporting)
+                states[i] = States(joints, odom, imu, contacts)
+        return states
 
     def read(self, data: mujoco.MjData, seqs: Sequence[int]) -> list[States]:
         """(physics lock held) take and messages in one go."""
