@@ -1451,6 +1451,9 @@ class LocoStatus(Message, frozen=True, tag="loco_status", kw_only=True):
     """Of those, the ones refused whole (wrong joints, gains stiffer than the controller's, out of range)."""
     commands_sent: int = 0
     """MotorCommands put on cmd/motors."""
+    stall_ticks: int = 0
+    """Of those, the ticks on a lockstep sim that had waited at one instant for 0.2-0.3 s of wall time with no state
+    due for a tick (a state delay repeated an instant, a dropout withheld them): sent from the newest state."""
     policy_steps: int = 0
     """Steps of the walking policy run since start."""
 

@@ -146,6 +146,11 @@ at = [2.5, 0.0]
     # 10 of the G1's 2 ms steps: under the course's lockstep (20 ms per command) each command lands one advance late.
     Item("command_delay", "walk 0.4 m/s, 20 ms (10 steps) of command delay (ctl/faults)", _flat,
          _fault({"verb": "set", "link": {"command_delay_steps": 10}}), 11.0, needs_faults=True),
+    # The same 20 ms the other way: each state the controller gets describes the instant one advance before.
+    Item("state_delay", "walk 0.4 m/s, 20 ms (10 steps) of state delay (ctl/faults)", _flat,
+         _fault({"verb": "set", "link": {"state_delay_steps": 10}}), 11.0, needs_faults=True),
+    Item("imu_drift", "walk 0.4 m/s, the IMU's heading drifting 0.05 rad/s (ctl/faults)", _flat,
+         _fault({"verb": "set", "sensors": {"orientation_drift_rad_s": 0.05}}), 11.0, needs_faults=True),
 )
 ITEM_NAMES: Final = tuple(item.name for item in ITEMS)
 

@@ -60,6 +60,10 @@ REQUEST_STATUS_PERIOD_S = 0.05
 """A ctl/loco request also puts its state on state/loco, at most this often (the reply always carries it)."""
 CLAIM_CHECK_S = 1.0
 """How long the startup check for another walking controller of this robot waits."""
+STALLED_STATUSES = 3
+"""Statuses in a row (10 Hz, wall clock: 0.2-0.3 s) of a lockstep sim waiting at one instant, while the controller is
+active, after which it ticks on its newest state. Never in a run whose every state is due (one per policy period):
+there the sim waits only for the milliseconds a tick takes, so a run stays the same to the bit."""
 GIL_SWITCH_INTERVAL_S = 0.0002
 """As in the sim and the adapter: a state callback that wakes never waits CPython's default 5 ms."""
 
@@ -90,12 +94,15 @@ class LocoService:
         self._scheduled = ScheduledVelocities()
         """Velocity commands with `at_s`, waiting for their tick."""
         self._last_velocity_now_s = 0.0
+        self._stalled: tuple[float | None, int] = (None, 0)
+        """A lockstep sim waiting at one instant: that instant, and how many statuses in a row said so."""
         self._seq = 0
         self._last_request_status = 0.0
         self.sim_run = SimRun(robot.info.run_id)
         """state/sim's run: `sim_run.restarted` is set when a restarted sim's robot must be learned again."""
         self.counts = {"velocity_received": 0, "velocity_refused": 0, "velocity_shed": 0, "requests": 0,
-                       "requests_refused": 0, "arm_received": 0, "arm_refused": 0, "commands_sent": 0}
+                       "requests_refused": 0, "arm_received": 0, "arm_refused": 0, "commands_sent": 0,
+                       "stall_ticks": 0}
         self.last_error: str | None = None
         info = robot.info
         self._cap = vector_cap_bytes(info.joint_names)
@@ -158,8 +165,24 @@ class LocoService:
 
     def _on_sim_status(self, sample: zenoh.Sample) -> None:
         status = self._decode_state(sample, "sim")
-        if status is not None:
-            self.sim_run.follows(status)  # sets sim_run.restarted on a new run
+        if status is None:
+            return
+        self.sim_run.follows(status)  # sets sim_run.restarted on a new run
+        command = None
+        with self._lock:
+            if status.clock != "lockstep" or not status.waiting or status.paused:
+                self._stalled = (None, 0)
+            else:
+                at, count = self._stalled
+                self._stalled = (status.sim_time_s, count + 1 if at == status.sim_time_s else 1)
+                if self._stalled[1] >= STALLED_STATUSES and self.controller.state.active and self._latest is not None:
+                    # The lockstep sim has waited on us at one instant for a few statuses: no state came that was
+                    # due for a tick (a state delay repeated an instant; a dropout withheld them). We are its clock:
+                    # a command from the newest state we have moves it on, as a real controller's timer would.
+                    self._stalled = (None, 0)
+                    self.counts["stall_ticks"] += 1
+                    command = self._tick(force=True)
+        self._put(command)
 
     def _tick(self, force: bool) -> MotorCommand | None:
         """The controller's command for the newest state, if one is due (under `_lock`)."""
@@ -414,7 +437,7 @@ def run(session: zenoh.Session, settings: LocoSettings, stop: threading.Event) -
         token.undeclare()
         service.close()
     c = service.counts
-    logger.info("%d commands sent; cmd/velocity %d read, %d refused, %d shed; ctl/loco %d, %d refused",
-                c["commands_sent"], c["velocity_received"], c["velocity_refused"], c["velocity_shed"], c["requests"],
-                c["requests_refused"])
+    logger.info("%d commands sent (%d on a stalled lockstep sim); cmd/velocity %d read, %d refused, %d shed; ctl/loco "
+                "%d, %d refused", c["commands_sent"], c["stall_ticks"], c["velocity_received"], c["velocity_refused"],
+                c["velocity_shed"], c["requests"], c["requests_refused"])
     return 0
