@@ -221,3 +221,17 @@ def test_a_restarted_sim_is_followed_and_another_robot_ends_the_walking_service(
     start_service("sim", "--urdf", str(urdf))
     assert walker.loco.proc.wait(60) == 1, walker.loco.log()
     assert "the restarted sim runs another robot" in walker.loco.log()
+
+
+def test_under_a_state_delay_the_lockstep_walker_keeps_the_sim_moving(walker):
+    """A state delay's first state repeats an instant the controller already ticked on (its ticks follow the
+    states' sim time), so it sends nothing and the lockstep sim would wait for ever; once the sim has waited on it
+    at one instant for a few statuses, it ticks on its newest state (LocoStatus.stall_ticks) and the walk goes on."""
+    walker.stand_up()
+    set_at = walker.now()
+    reply = ctl(walker.session, walker.keys.ctl("faults"), {"verb": "set", "link": {"state_delay_steps": 10}})
+    assert reply["ok"], reply
+    walked = walker.run_until(set_at + 2.0)
+    assert walked.pos[2] > 0.6, "still standing"
+    status = walker.loco_status.wait(lambda s: s.stall_ticks >= 1, 10, "a tick on the stalled sim")
+    assert status.stall_ticks <= 3, status  # once as the delay starts (a few under load), not every state
