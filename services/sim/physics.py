@@ -453,11 +453,14 @@ class Simulation:
         """
         data, robot = self.data, self.robot
         qpos, qvel = (data.qpos, data.qvel) if robot.slot is None else (data.qpos[robot.slot.qpos], data.qvel[robot.slot.dof])
-        if not (np.all(np.isfinite(qpos)) and np.all(np.isfinite(qvel))):
+        # A NaN or an infinity anywhere makes the sum one (so does a sum past 1e308: broken too); one reduction
+        # each, not isfinite's array and all's (a robot alone checks this at every state).
+        if not math.isfinite(float(qpos.sum()) + float(qvel.sum())):
             return "a non-finite position or velocity"
         if robot.free_qpos_adr >= 0:
             height = float(data.qpos[robot.free_qpos_adr + 2])
-            speed = float(np.linalg.norm(data.qvel[robot.free_dof_adr:robot.free_dof_adr + 3]))
+            vx, vy, vz = data.qvel[robot.free_dof_adr:robot.free_dof_adr + 3].tolist()
+            speed = math.sqrt(vx * vx + vy * vy + vz * vz)
             if speed > MAX_BASE_SPEED_M_S:
                 return f"the base moves at {speed:.3g} m/s (more than {MAX_BASE_SPEED_M_S:g})"
             if height > robot.base_height_m + MAX_BASE_RISE_M:
