@@ -14,14 +14,23 @@ interleaved, so the machine's load falls on all alike), from the same settled st
             (mj_step nstep); disturbed, they run one by one, the force worked out before each
 
 Time is the thread's CPU time (time.thread_time); medians over rounds, and each case's ratio to none.
+`--before REV` adds each disturbed case again with services/sim/disturbances.py as it was at the git revision
+REV (loaded from `git show`, put on the robot in place of the current one), in the same rounds: before and
+after side by side, under the same load.
 Results go to stdout; docs/benchmarks.md keeps the figures.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
+from types import ModuleType
 
 import mujoco
 
@@ -34,9 +43,26 @@ SETTLE_S = 1.0
 CASES = ("none", "push", "band", "push+band")
 
 
-def settled() -> tuple[World, mujoco.MjData]:
+def disturbances_at(rev: str) -> ModuleType:
+    """services/sim/disturbances.py as it was at git revision `rev`, imported as a module of its own."""
+    root = Path(__file__).resolve().parent.parent
+    text = subprocess.run(["git", "show", f"{rev}:services/sim/disturbances.py"], cwd=root, check=True,
+                          capture_output=True, text=True).stdout
+    path = Path(tempfile.mkdtemp()) / "disturbances_before.py"
+    path.write_text(text)
+    spec = importlib.util.spec_from_file_location("disturbances_before", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def settled(before: ModuleType | None = None) -> tuple[World, mujoco.MjData]:
     world = World.alone("bench", robot_files("g1"), "floating", Limits(5000, 500), 1e9)
     (sim,) = world.robots
+    if before is not None:
+        sim.disturbances = before.Disturbances(sim.robot, world.data)
     sim.accept_command(MotorCommand(q=sim.robot.default_q.tolist()))
     world.step(int(SETTLE_S / world.timestep_s))
     snapshot = mujoco.MjData(world.model)
@@ -57,14 +83,18 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--rounds", type=int, default=15)
+    parser.add_argument("--before", metavar="REV", help="also run the disturbed cases with disturbances.py of REV")
     args = parser.parse_args()
     cases = {case: settled() for case in CASES}
-    times: dict[tuple[str, str], list[float]] = {(case, how): [] for case in CASES for how in ("step", "advance")}
+    if args.before:
+        before = disturbances_at(args.before)
+        cases.update({f"{case}@{args.before}": settled(before) for case in CASES if case != "none"})
+    times: dict[tuple[str, str], list[float]] = {(case, how): [] for case in cases for how in ("step", "advance")}
     for _ in range(args.rounds):
         for how in ("step", "advance"):
             for case, (world, snapshot) in cases.items():
                 mujoco.mj_copyData(world.data, world.model, snapshot)
-                disturb(world, case)
+                disturb(world, case.split("@")[0])
                 start = time.thread_time()
                 if how == "step":
                     for _ in range(args.steps):
@@ -75,14 +105,15 @@ def main() -> int:
                 times[case, how].append((time.thread_time() - start) / args.steps * 1e6)
                 assert not world.fallen(world.take([0]))[0], f"{case}: the robot fell; the case measures nothing"
     print(f"{args.rounds} rounds of {args.steps} steps; CPU us per physics step, median (ratio to none)")
-    print(f"{'case':<10} {'step':>16} {'advance':>16}")
-    for case in CASES:
+    width = max(map(len, cases))
+    print(f"{'case':<{width}} {'step':>16} {'advance':>16}")
+    for case in cases:
         cells = []
         for how in ("step", "advance"):
             median = statistics.median(times[case, how])
             base = statistics.median(times["none", how])
             cells.append(f"{median:7.1f} ({median / base:4.2f})")
-        print(f"{case:<10} {cells[0]:>16} {cells[1]:>16}")
+        print(f"{case:<{width}} {cells[0]:>16} {cells[1]:>16}")
     return 0
 
 
