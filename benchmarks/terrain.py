@@ -7,7 +7,8 @@ mj_step1 with the held targets), floating and holding its default pose on its ga
 for 1 s; every round times `--steps` steps of each case in turn (cases interleaved, so the machine's load
 falls on all of them alike), from the same settled state each round. Time is the thread's CPU time
 (time.thread_time): on a shared machine the wall clock also counts the time other processes held the core,
-which swamps a 10 % difference. Medians over rounds, and each case's ratio to flat.
+which swamps a 10 % difference. Medians over rounds, and each case's ratio to flat (and the ratio of the
+fastest rounds, `min`, the least disturbed by the machine's other work).
 
 Where the time goes, from MuJoCo's own profiler (mjData.timer over the timed steps): broad and narrow phase of
 the collision pass, making the constraints (Jacobians of every contact row) and solving them, each as its share
@@ -26,18 +27,30 @@ Cases:
   rough-10   the same with 10 cm cells (fewer cells under each foot: fewer contacts)
   rough-fine the same with 2 cm cells
 
+`--before REV` adds each case again with the terrain put into the model as robots/terrain.py's add_to_spec did
+at the git revision REV (loaded from `git show`), in the same rounds: before and after side by side.
+
 Results go to stdout; docs/benchmarks.md keeps the figures.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import importlib.util
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from collections.abc import Iterator
+from pathlib import Path
+from types import ModuleType
 
 import mujoco
 
 from zensim.robots import robot_files
+from zensim.robots import terrain as terrain_module
 from zensim.robots.terrain import terrain_from_table
 from zensim.schemas import MotorCommand
 from zensim.schemas.messages import Terrain
@@ -87,6 +100,33 @@ STAGES = {
 """MuJoCo's profiler stages reported (mjData.timer): collision broad and narrow phase, constraint making, solver."""
 
 
+def terrain_at(rev: str) -> ModuleType:
+    """robots/terrain.py as it was at git revision `rev`, imported as a module of its own."""
+    root = Path(__file__).resolve().parent.parent
+    text = subprocess.run(["git", "show", f"{rev}:robots/terrain.py"], cwd=root, check=True, capture_output=True,
+                          text=True).stdout
+    path = Path(tempfile.mkdtemp()) / "terrain_before.py"
+    path.write_text(text)
+    spec = importlib.util.spec_from_file_location("terrain_before", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@contextlib.contextmanager
+def building_with(module: ModuleType | None) -> Iterator[None]:
+    """Models built meanwhile get their terrain from `module`'s add_to_spec (None: the current one)."""
+    current = terrain_module.add_to_spec
+    if module is not None:
+        terrain_module.add_to_spec = module.add_to_spec
+    try:
+        yield
+    finally:
+        terrain_module.add_to_spec = current
+
+
 def settled(terrain: Terrain | None) -> tuple[World, mujoco.MjData]:
     world = World.alone("bench", robot_files("g1"), "floating", Limits(5000, 500), 1e9, terrain=terrain)
     (sim,) = world.robots
@@ -103,9 +143,15 @@ def main() -> int:
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--rounds", type=int, default=15)
     parser.add_argument("--cases", default=",".join(CASES), help="comma-separated, of: " + ", ".join(CASES))
+    parser.add_argument("--before", metavar="REV", help="also build each case with robots/terrain.py of REV")
     args = parser.parse_args()
     names = ["flat", *[name for name in args.cases.split(",") if name != "flat"]]
     worlds = {name: settled(CASES[name]) for name in names}
+    if args.before:
+        before = terrain_at(args.before)
+        with building_with(before):
+            worlds.update({f"{name}@{args.before}": settled(CASES[name]) for name in names if name != "flat"})
+        names = list(worlds)
     times: dict[str, list[float]] = {name: [] for name in names}
     stages: dict[str, dict[str, list[float]]] = {name: {stage: [] for stage in STAGES} for name in names}
     contacts: dict[str, tuple[int, int]] = {}
@@ -125,12 +171,13 @@ def main() -> int:
             assert not world.fallen(world.take([0]))[0], f"{name}: the robot fell while timed"
     flat = statistics.median(times["flat"])
     print(f"{args.rounds} rounds of {args.steps} steps; CPU us per physics step, median; MuJoCo's stages (us per step)")
-    print(f"{'case':<11} {'geoms':>5} {'ncon':>4} {'nefc':>4} {'us/step':>8} {'vs flat':>7} "
+    width = max(map(len, names))
+    print(f"{'case':<{width}} {'geoms':>5} {'ncon':>4} {'nefc':>4} {'us/step':>8} {'vs flat':>7} {'min':>6} "
           + " ".join(f"{stage:>6}" for stage in STAGES))
     for name, (world, _) in worlds.items():
         median = statistics.median(times[name])
-        print(f"{name:<11} {world.model.ngeom:>5} {contacts[name][0]:>4} {contacts[name][1]:>4} {median * 1e6:>8.1f} "
-              f"{median / flat:>7.3f} "
+        print(f"{name:<{width}} {world.model.ngeom:>5} {contacts[name][0]:>4} {contacts[name][1]:>4} {median * 1e6:>8.1f} "
+              f"{median / flat:>7.3f} {min(times[name]) / min(times['flat']):>6.3f} "
               + " ".join(f"{statistics.median(stages[name][stage]) * 1e6:>6.1f}" for stage in STAGES))
     return 0
 

@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # builder imports this module; a Robot is only read here
     from zensim.robots.builder import Robot
 
 __all__ = ["TERRAIN_GROUP", "TerrainError", "Block", "HeightField", "Prism", "Shapes", "add_to_spec", "geometry",
-           "ground_under", "load_terrain", "terrain_from_table"]
+           "ground_geoms", "ground_under", "load_terrain", "terrain_from_table"]
 
 TERRAIN_GROUP: Final = 3
 """MuJoCo geom group of the terrain's geoms: ray casts for the ground under a robot see only these."""
@@ -269,28 +269,41 @@ HFIELD_BASE_M: Final = 0.1
 
 
 def add_to_spec(spec: mujoco.MjSpec, terrain: Terrain, contype: int, conaffinity: int, friction: list[float]) -> None:
-    """Add the terrain's shapes to the world body of `spec`, colliding as the floor does (same contact bits
-    and friction). Names: terrain_block_{i}, terrain_slope_{i}, terrain_rough_{i}."""
+    """Add the terrain's shapes to `spec`, colliding as the floor does (same contact bits and friction). Names:
+    terrain_block_{i}, terrain_slope_{i}, terrain_rough_{i}, each a geom in a static body of the same name.
+
+    Each shape has a static body of its own (a child of the world, no joint), not a place in the world body:
+    MuJoCo's broadphase pairs the world body's geoms with every body of every robot at every step, whatever
+    the distance (they are meant for floors), while a body of its own is paired only with the bodies whose
+    bounding boxes reach it. In the world body a course beside the robot cost 10-25 % of the G1's step for
+    nothing (benchmarks/terrain.py, docs/benchmarks.md); the contacts are the same either way.
+    """
     shapes = geometry(terrain)
     world = spec.worldbody
     common = dict(contype=contype, conaffinity=conaffinity, friction=friction, rgba=list(TERRAIN_RGBA),
                   group=TERRAIN_GROUP)
     for i, block in enumerate(shapes.blocks):
-        world.add_geom(name=f"terrain_block_{i}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=list(block.centre),
-                       size=list(block.half), quat=list(block.quat_wxyz), **common)
+        name = f"terrain_block_{i}"
+        world.add_body(name=name).add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, pos=list(block.centre),
+                                           size=list(block.half), quat=list(block.quat_wxyz), **common)
     for i, prism in enumerate(shapes.prisms):
-        spec.add_mesh(name=f"terrain_slope_{i}", uservert=prism.vertices.flatten().tolist(),
-                      userface=prism.faces.flatten().tolist())
-        world.add_geom(name=f"terrain_slope_{i}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"terrain_slope_{i}",
-                       **common)
+        name = f"terrain_slope_{i}"
+        spec.add_mesh(name=name, uservert=prism.vertices.flatten().tolist(), userface=prism.faces.flatten().tolist())
+        world.add_body(name=name).add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, **common)
     for i, field in enumerate(shapes.fields):
+        name = f"terrain_rough_{i}"
         top = max(float(field.heights.max()), 1e-6)  # never 0: the data is divided by it
         rows, cols = field.heights.shape
         # MuJoCo scales the field's data (0..1) by size[2]: the highest point gives the scale.
-        spec.add_hfield(name=f"terrain_rough_{i}", size=[*field.half, top, HFIELD_BASE_M], nrow=rows, ncol=cols,
+        spec.add_hfield(name=name, size=[*field.half, top, HFIELD_BASE_M], nrow=rows, ncol=cols,
                         userdata=(field.heights / top).flatten().tolist())
-        world.add_geom(name=f"terrain_rough_{i}", type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=f"terrain_rough_{i}",
-                       pos=[*field.centre, 0.0], **common)
+        world.add_body(name=name).add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=name,
+                                           pos=[*field.centre, 0.0], **common)
+
+
+def ground_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Which geoms are the ground (the floor, in the world body, and the terrain's, in their static bodies)."""
+    return (model.geom_bodyid == 0) | (model.geom_group == TERRAIN_GROUP)
 
 
 def ground_at(model: mujoco.MjModel, data: mujoco.MjData, x: float, y: float) -> float:
@@ -322,7 +335,7 @@ def ground_under(robot: Robot) -> float:
     corners = []
     for g in range(model.ngeom):
         body = int(model.geom_bodyid[g])
-        if body == 0 or (robot.slot is not None and not robot.slot.bodies.start <= body < robot.slot.bodies.stop):
+        if model.body_rootid[body] != robot.base_body_id:  # the floor, the terrain, another robot
             continue
         centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
         corners.append(data.geom_xpos[g] - base + (centre + signs * half) @ data.geom_xmat[g].reshape(3, 3).T)

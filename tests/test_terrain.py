@@ -123,14 +123,14 @@ def drop_box(terrain: Terrain, xy: tuple[float, float], half: float = 0.1, secon
     spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], contype=FLOOR_BIT | ROBOT_BIT,
                             conaffinity=FLOOR_BIT | ROBOT_BIT)
     add_to_spec(spec, terrain, FLOOR_BIT | ROBOT_BIT, FLOOR_BIT | ROBOT_BIT, [1.0, 0.005, 0.0001])
-    body = spec.worldbody.add_body(pos=[xy[0], xy[1], 1.0])
+    body = spec.worldbody.add_body(name="cube", pos=[xy[0], xy[1], 1.0])
     body.add_freejoint()
     body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[half] * 3, mass=1.0, friction=[1.0, 0.005, 0.0001])
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_step(model, data, nstep=int(seconds / model.opt.timestep))
     assert np.linalg.norm(data.qvel[:3]) < 1e-3, "the box has not come to rest"
-    return data.qpos[:3].copy(), data.xmat[1].reshape(3, 3)[:, 2].copy()
+    return data.qpos[:3].copy(), data.body("cube").xmat.reshape(3, 3)[:, 2].copy()  # the terrain's bodies come first
 
 
 class TestDroppedBox:
