@@ -102,12 +102,15 @@ class Disturbances:
         """The band's fixed point, world frame, m: above the robot's spawn place."""
         self.band_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.pushes: list[Push] = []
-        self._written: set[int] = set()
+        self._written: frozenset[int] = frozenset()
         """Rows of xfrc_applied written for the last step (cleared at the next step that does not need them)."""
+        self._push_forces: dict[int, tuple[float, float, float]] | None = None
+        """The pushes' force on each body they act on, summed in their order; None: to be summed again (a push
+        started or ended since)."""
         # Views into `data`'s own arrays (MuJoCo never moves them; a rebuild's new data comes through here):
         # indexing data.xpos or data.qvel anew makes a fresh array each time, a third of the band's cost.
         base = robot.base_body_id
-        self._base_only = {base}
+        self._base_only = frozenset((base,))
         self._base_force = data.xfrc_applied[base, :3]
         self._base_pos = data.xpos[base]
         self._base_vel = data.qvel[robot.free_dof_adr:robot.free_dof_adr + 3] if self.floating else None
@@ -139,6 +142,7 @@ class Disturbances:
         steps = max(1, round(request.duration_s / timestep_s))
         push = Push(body, body_id, force, float(self.data.time), steps, steps)
         self.pushes.append(push)
+        self._push_forces = None
         self.pushes_applied += 1
         self.last_push = state = push.state(timestep_s)
         return state
@@ -185,9 +189,10 @@ class Disturbances:
     def clear_pushes(self) -> None:
         """End every push now (a reset): their rows are cleared at once."""
         self.pushes.clear()
+        self._push_forces = None
         for row in self._written:
             self.data.xfrc_applied[row, :3] = 0.0
-        self._written.clear()
+        self._written = frozenset()
         self.band_force = (0.0, 0.0, 0.0)
 
     # --- stepping ------------------------------------------------------------------------------
@@ -200,34 +205,54 @@ class Disturbances:
         """Before one physics step: write this step's forces (and clear last step's rows no force needs now).
 
         Plain floats, not numpy: on 3-vectors numpy's call overhead is the cost (the band's force in numpy took
-        5 us a step, a sixth of the G1's whole step; benchmarks/disturbances.py). The band alone, the case that
-        runs for minutes, takes the short way: its row written in place, nothing else to clear.
+        5 us a step, a sixth of the G1's whole step; benchmarks/disturbances.py). What stays the same from step
+        to step is worked out once: the pushes' sums until one starts or ends, the rows to write while that set
+        holds; the band alone, the case that runs for minutes, writes its row in place and nothing else.
         """
-        if not self.pushes and self._written == self._base_only and self.band_holds():
-            fx, fy, fz = self.band_force = self._band_force()
-            row = self._base_force
-            row[0], row[1], row[2] = fx, fy, fz
-            return
-        xfrc = self.data.xfrc_applied
-        forces: dict[int, list[float]] = {}
-        if self.band_holds():
-            self.band_force = self._band_force()
-            forces[self.robot.base_body_id] = list(self.band_force)
-        if self.pushes:
+        band = self.band_holds()
+        if not self.pushes:
+            if band and self._written == self._base_only:
+                fx, fy, fz = self.band_force = self._band_force()
+                row = self._base_force
+                row[0], row[1], row[2] = fx, fy, fz
+                return
+            forces: dict[int, tuple[float, float, float]] = {}
+        else:
+            forces = self._push_forces if self._push_forces is not None else self._sum_pushes()
+            ended = False
             for push in self.pushes:
-                total = forces.get(push.body_id)
-                if total is None:
-                    forces[push.body_id] = list(push.force)
-                else:
-                    forces[push.body_id] = [a + b for a, b in zip(total, push.force)]
                 push.steps_left -= 1
-            self.pushes = [push for push in self.pushes if push.steps_left > 0]
-        if self._written:
-            for row in self._written.difference(forces):
-                xfrc[row, :3] = 0.0
-        for row, force in forces.items():
-            xfrc[row, :3] = force
-        self._written = set(forces)
+                ended = ended or push.steps_left <= 0
+            if ended:  # this step is its last: summed again for the next
+                self.pushes = [push for push in self.pushes if push.steps_left > 0]
+                self._push_forces = None
+        xfrc = self.data.xfrc_applied
+        base = self.robot.base_body_id
+        if band:
+            bx, by, bz = self.band_force = self._band_force()
+            push = forces.get(base)
+            if push is not None:
+                bx, by, bz = bx + push[0], by + push[1], bz + push[2]
+            row = self._base_force
+            row[0], row[1], row[2] = bx, by, bz
+        for body, force in forces.items():
+            if not (band and body == base):
+                xfrc[body, :3] = force
+        rows = frozenset(forces) | self._base_only if band else frozenset(forces)
+        if self._written != rows:
+            for body in self._written - rows:
+                xfrc[body, :3] = 0.0
+            self._written = rows
+
+    def _sum_pushes(self) -> dict[int, tuple[float, float, float]]:
+        """The pushes' forces summed per body (kept until a push starts or ends)."""
+        forces: dict[int, tuple[float, float, float]] = {}
+        for push in self.pushes:
+            total = forces.get(push.body_id)
+            forces[push.body_id] = push.force if total is None else (
+                total[0] + push.force[0], total[1] + push.force[1], total[2] + push.force[2])
+        self._push_forces = forces
+        return forces
 
     def _band_force(self) -> tuple[float, float, float]:
         """The band's pull on the base now: spring past its length, damped along it, never a push."""
