@@ -13,6 +13,11 @@ interleaved, so the machine's load falls on all alike), from the same settled st
   advance   World.step(10, held=True) per lockstep advance: undisturbed, MuJoCo runs the 10 steps in one call
             (mj_step nstep); disturbed, they run one by one, the force worked out before each
 
+One more case splits what the band costs: "held force" writes the band's pull at the settled state into
+xfrc_applied once and leaves the band off, so MuJoCo applies the same force at every step with no Python per
+step and, under lockstep, the advance stays one MuJoCo call. band - held force: working the force out at every
+step (and, in an advance, stepping one by one); held force - none: the force itself, in the physics.
+
 Time is the thread's CPU time (time.thread_time); medians over rounds, and each case's ratio to none.
 `--before REV` adds each disturbed case again with services/sim/disturbances.py as it was at the git revision
 REV (loaded from `git show`, put on the robot in place of the current one), in the same rounds: before and
@@ -40,7 +45,7 @@ from zensim.sim.physics import Limits
 from zensim.sim.world import World
 
 SETTLE_S = 1.0
-CASES = ("none", "push", "band", "push+band")
+CASES = ("none", "held force", "push", "band", "push+band")
 
 
 def disturbances_at(rev: str) -> ModuleType:
@@ -74,7 +79,13 @@ def disturb(world: World, case: str) -> None:
     """Put the case's disturbances on (from the settled state: no push acts, the band is off)."""
     disturbances = world.robots[0].disturbances
     disturbances.clear_pushes()
-    disturbances.band(BandRequest(verb="on" if "band" in case else "off", length_m=2.2))
+    disturbances.band(BandRequest(verb="on" if "band" in case or case == "held force" else "off", length_m=2.2))
+    if case == "held force":  # the band's pull now, held: written once, no Disturbances at any step
+        disturbances.apply()
+        force = disturbances.band_force
+        disturbances.band(BandRequest(verb="off"))
+        disturbances.clear_pushes()  # clears the row and forgets it: written again below, nothing clears it then
+        world.data.xfrc_applied[world.robots[0].robot.base_body_id, :3] = force
     if "push" in case:
         disturbances.push(PushRequest(direction=(1, 0, 0), magnitude_n=20, duration_s=10))
 
@@ -88,7 +99,7 @@ def main() -> int:
     cases = {case: settled() for case in CASES}
     if args.before:
         before = disturbances_at(args.before)
-        cases.update({f"{case}@{args.before}": settled(before) for case in CASES if case != "none"})
+        cases.update({f"{case}@{args.before}": settled(before) for case in CASES if case not in ("none", "held force")})
     times: dict[tuple[str, str], list[float]] = {(case, how): [] for case in cases for how in ("step", "advance")}
     for _ in range(args.rounds):
         for how in ("step", "advance"):

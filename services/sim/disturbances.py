@@ -24,6 +24,7 @@ import math
 from dataclasses import dataclass
 
 import mujoco
+import numpy as np
 
 from zensim.robots.builder import Robot
 from zensim.schemas import BandRequest, BandState, PushRequest, PushState, short_repr
@@ -107,11 +108,16 @@ class Disturbances:
         self._push_forces: dict[int, tuple[float, float, float]] | None = None
         """The pushes' force on each body they act on, summed in their order; None: to be summed again (a push
         started or ended since)."""
+        self._push_rows: frozenset[int] = frozenset()
+        """The rows the pushes write; with the base's (the band's) in _push_rows_band."""
+        self._push_rows_band: frozenset[int] = frozenset()
         # Views into `data`'s own arrays (MuJoCo never moves them; a rebuild's new data comes through here):
         # indexing data.xpos or data.qvel anew makes a fresh array each time, a third of the band's cost.
         base = robot.base_body_id
         self._base_only = frozenset((base,))
-        self._base_force = data.xfrc_applied[base, :3]
+        self._rows: dict[int, np.ndarray] = {}
+        """Each row's force part of xfrc_applied written so far, as a view (`_row`)."""
+        self._base_force = self._row(base)
         self._base_pos = data.xpos[base]
         self._base_vel = data.qvel[robot.free_dof_adr:robot.free_dof_adr + 3] if self.floating else None
         """The base's linear velocity, world frame (the free joint's first 3 dofs); None in the fixed mode."""
@@ -206,8 +212,8 @@ class Disturbances:
 
         Plain floats, not numpy: on 3-vectors numpy's call overhead is the cost (the band's force in numpy took
         5 us a step, a sixth of the G1's whole step; benchmarks/disturbances.py). What stays the same from step
-        to step is worked out once: the pushes' sums until one starts or ends, the rows to write while that set
-        holds; the band alone, the case that runs for minutes, writes its row in place and nothing else.
+        to step is worked out once: the pushes' sums and their rows until a push starts or ends, each row's view
+        into xfrc_applied; the band alone, the case that runs for minutes, writes its row and nothing else.
         """
         band = self.band_holds()
         if not self.pushes:
@@ -217,8 +223,10 @@ class Disturbances:
                 row[0], row[1], row[2] = fx, fy, fz
                 return
             forces: dict[int, tuple[float, float, float]] = {}
+            rows = self._base_only if band else frozenset()
         else:
             forces = self._push_forces if self._push_forces is not None else self._sum_pushes()
+            rows = self._push_rows_band if band else self._push_rows
             ended = False
             for push in self.pushes:
                 push.steps_left -= 1
@@ -226,7 +234,6 @@ class Disturbances:
             if ended:  # this step is its last: summed again for the next
                 self.pushes = [push for push in self.pushes if push.steps_left > 0]
                 self._push_forces = None
-        xfrc = self.data.xfrc_applied
         base = self.robot.base_body_id
         if band:
             bx, by, bz = self.band_force = self._band_force()
@@ -235,23 +242,33 @@ class Disturbances:
                 bx, by, bz = bx + push[0], by + push[1], bz + push[2]
             row = self._base_force
             row[0], row[1], row[2] = bx, by, bz
-        for body, force in forces.items():
+        for body, (fx, fy, fz) in forces.items():
             if not (band and body == base):
-                xfrc[body, :3] = force
-        rows = frozenset(forces) | self._base_only if band else frozenset(forces)
+                row = self._row(body)
+                row[0], row[1], row[2] = fx, fy, fz
         if self._written != rows:
             for body in self._written - rows:
-                xfrc[body, :3] = 0.0
+                row = self._row(body)
+                row[0] = row[1] = row[2] = 0.0
             self._written = rows
 
+    def _row(self, body: int) -> np.ndarray:
+        """The force part of `body`'s row of xfrc_applied, a view made once."""
+        row = self._rows.get(body)
+        if row is None:
+            row = self._rows[body] = self.data.xfrc_applied[body, :3]
+        return row
+
     def _sum_pushes(self) -> dict[int, tuple[float, float, float]]:
-        """The pushes' forces summed per body (kept until a push starts or ends)."""
+        """The pushes' forces summed per body, and their rows (kept until a push starts or ends)."""
         forces: dict[int, tuple[float, float, float]] = {}
         for push in self.pushes:
             total = forces.get(push.body_id)
             forces[push.body_id] = push.force if total is None else (
                 total[0] + push.force[0], total[1] + push.force[1], total[2] + push.force[2])
         self._push_forces = forces
+        self._push_rows = frozenset(forces)
+        self._push_rows_band = self._push_rows | self._base_only
         return forces
 
     def _band_force(self) -> tuple[float, float, float]:
