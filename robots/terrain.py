@@ -234,7 +234,7 @@ def _slope_blocks(f: Slope) -> list[Block] | None:
     (a wedge rise * tan(angle) long at the floor) and the top box covers it only when top_m is at least that
     long: a shorter top keeps the prism. Why boxes: MuJoCo collides a box with a box analytically, and a box
     with a convex mesh (the prism) by iterating (GJK/EPA, several times over for the several contacts of a flat
-    foot): a G1 standing on a slope took 5-6 us a step more on the mesh (benchmarks/terrain.py).
+    foot): a G1 standing on a slope took 3-4 us a step more on the mesh (benchmarks/terrain.py).
     """
     angle, yaw = math.radians(f.angle_deg), math.radians(f.direction_deg)
     rise = f.length_m * math.tan(angle)
