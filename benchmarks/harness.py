@@ -198,8 +198,21 @@ class Latest:
 def test_scaffolding(name: str) -> ModuleType:
     """tests/<name>.py loaded by its path: `browser` (headless chromium), `unitree_sdk` (SDK-style client)
     or `netns` (network namespaces as hosts)."""
-    path = REPO / "tests" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(f"zensim_test_scaffolding.{name}", path)
+    return _load(f"zensim_test_scaffolding.{name}", REPO / "tests" / f"{name}.py")
+
+
+def module_at(rev: str, path: str) -> ModuleType:
+    """The file `path` of the checkout as it was at git revision `rev`, imported as a module of its own (a
+    benchmark's "before", run beside the current code in the same rounds)."""
+    text = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=REPO, check=True, capture_output=True, text=True).stdout
+    name = Path(path).stem + "_before"
+    copy = Path(tempfile.mkdtemp()) / f"{name}.py"
+    copy.write_text(text)
+    return _load(name, copy)
+
+
+def _load(name: str, path: Path) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(name, path)
     assert spec is not None and spec.loader is not None, path
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up while the class is made

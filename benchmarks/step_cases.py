@@ -30,12 +30,15 @@ Times = dict[tuple[str, str], list[float]]
 """(case, how) -> CPU microseconds per unit (a physics step, a state read), one per round."""
 
 
-def arguments(doc: str, hows: Sequence[str] = ()) -> argparse.Namespace:
+def arguments(doc: str, hows: Sequence[str] = (), before: str = "") -> argparse.Namespace:
     """The command line every step-case benchmark takes: `--steps` per case and round, `--rounds`; with `hows`,
-    also `--hows`, the ways to time (a comma-separated subset)."""
+    also `--hows`, the ways to time (a comma-separated subset); with `before` (what it runs at another revision),
+    also `--before REV`."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--rounds", type=int, default=15)
+    if before:
+        parser.add_argument("--before", metavar="REV", help=f"also run {before} as it was at git revision REV")
     if hows:
         parser.add_argument("--hows", default=",".join(hows),
                             help=f"what to time, of {', '.join(hows)} (read alone: many reads in little time)")
@@ -45,9 +48,12 @@ def arguments(doc: str, hows: Sequence[str] = ()) -> argparse.Namespace:
     return args
 
 
-def settled() -> tuple[World, mujoco.MjData]:
-    """A G1 world holding its default pose, settled, and a copy of its settled state to restore."""
+def settled(prepare: Callable[[World], None] | None = None) -> tuple[World, mujoco.MjData]:
+    """A G1 world holding its default pose, settled, and a copy of its settled state to restore; `prepare` runs on
+    the new world first (to put another revision's module in place)."""
     world = World.alone("bench", robot_files("g1"), "floating", Limits(5000, 500), 1e9)
+    if prepare is not None:
+        prepare(world)
     (sim,) = world.robots
     sim.accept_command(MotorCommand(q=sim.robot.default_q.tolist()))
     world.step(int(SETTLE_S / world.timestep_s))
@@ -88,11 +94,12 @@ def time_rounds(worlds: dict[str, tuple[World, mujoco.MjData]], hows: Sequence[s
 
 def print_table(times: Times, cases: Sequence[str], hows: Sequence[str]) -> None:
     """A row per case: each way's median and, in brackets, its ratio to the first case's."""
-    print(f"{'case':<10} " + " ".join(f"{how:>16}" for how in hows))
+    width = max(10, *map(len, cases))
+    print(f"{'case':<{width}} " + " ".join(f"{how:>16}" for how in hows))
     for case in cases:
         cells = []
         for how in hows:
             median = statistics.median(times[case, how])
             base = statistics.median(times[cases[0], how])
             cells.append(f"{median:7.1f} ({median / base:4.2f})")
-        print(f"{case:<10} " + " ".join(f"{cell:>16}" for cell in cells))
+        print(f"{case:<{width}} " + " ".join(f"{cell:>16}" for cell in cells))

@@ -348,12 +348,14 @@ def _compile(prepared: _Prepared, files: RobotFiles) -> mujoco.MjModel:
 
 
 def _lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData, slot: WorldSlot | None = None) -> float:
-    """Lowest z over the robot's collision geoms' bounding boxes (floor excluded; in a world, its own geoms)."""
+    """Lowest z over the robot's collision geoms' bounding boxes (floor and terrain excluded; in a world, its own
+    geoms)."""
     lowest = math.inf
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    ground = terrain_shapes.ground_geoms(model)
     for g in range(model.ngeom):
         body = int(model.geom_bodyid[g])
-        if body == 0 or (slot is not None and not slot.bodies.start <= body < slot.bodies.stop):
+        if ground[g] or (slot is not None and not slot.bodies.start <= body < slot.bodies.stop):
             continue
         centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
         corners = centre + signs * half

@@ -4,6 +4,9 @@ A terrain (schemas.messages.Terrain) lists features on the flat floor: slopes, s
 stepping stones and boxes. `geometry` turns it into plain shapes (solid blocks, convex prisms, height
 fields), the one description of what stands where: `add_to_spec` puts those shapes into the model once,
 at build time, and the viewer draws the same shapes (services/viz/terrain.py). Nothing here runs per step.
+What it costs per step is MuJoCo's collision pass and solver, so the model gets the cheapest form of the same
+ground: each feature a static body of its own (not the world body), a slope two boxes where they make its
+prism's solid above the floor (docs/benchmarks.md, "Terrain").
 
 Rough ground is seeded with a hash of the seed and the grid point (splitmix64), not numpy's generators,
 whose streams may change between numpy versions: the same seed gives the same ground on every machine.
@@ -40,7 +43,7 @@ if TYPE_CHECKING:  # builder imports this module; a Robot is only read here
     from zensim.robots.builder import Robot
 
 __all__ = ["TERRAIN_GROUP", "TerrainError", "Block", "HeightField", "Prism", "Shapes", "add_to_spec", "geometry",
-           "ground_under", "load_terrain", "terrain_from_table"]
+           "ground_geoms", "ground_under", "load_terrain", "terrain_from_table"]
 
 TERRAIN_GROUP: Final = 3
 """MuJoCo geom group of the terrain's geoms: ray casts for the ground under a robot see only these."""
@@ -223,6 +226,32 @@ def _slope(f: Slope) -> Prism:
     return Prism(np.array(vertices, float), np.array(faces, np.int32))
 
 
+def _slope_blocks(f: Slope) -> list[Block] | None:
+    """The slope as two boxes, when they make the same solid above the floor as its prism; else None.
+
+    The incline is a box tilted by the slope's angle whose top face is the incline, deep enough to reach below
+    the floor everywhere; the top is a box from the incline's crest. The tilted box's far end leans outward
+    (a wedge rise * tan(angle) long at the floor) and the top box covers it only when top_m is at least that
+    long: a shorter top keeps the prism. Why boxes: MuJoCo collides a box with a box analytically, and a box
+    with a convex mesh (the prism) by iterating (GJK/EPA, several times over for the several contacts of a flat
+    foot): a G1 standing on a slope took 3-4 us a step more on the mesh (benchmarks/terrain.py).
+    """
+    angle, yaw = math.radians(f.angle_deg), math.radians(f.direction_deg)
+    rise = f.length_m * math.tan(angle)
+    if f.top_m < rise * math.tan(angle):
+        return None
+    depth = rise / math.cos(angle) + SLOPE_BASE_M  # the far end's bottom edge below the floor
+    s = f.length_m / 2 + depth / 2 * math.sin(angle)  # the box's centre: the incline's middle, down its normal
+    x, y = _along(f.at, yaw, s)
+    # Yaw about z, then the tilt about the box's lateral axis (y), its x axis rising along the incline.
+    cy, sy, ca, sa = math.cos(yaw / 2), math.sin(yaw / 2), math.cos(angle / 2), math.sin(angle / 2)
+    incline = Block((x, y, rise / 2 - depth / 2 * math.cos(angle)),
+                    (f.length_m / math.cos(angle) / 2, f.width_m / 2, depth / 2), (cy * ca, sy * sa, -cy * sa, sy * ca))
+    if f.top_m == 0:
+        return [incline]
+    return [incline, _run_block(f.at, yaw, f.length_m, f.length_m + f.top_m, f.width_m, rise)]
+
+
 _MASK64: Final = (1 << 64) - 1
 
 
@@ -266,31 +295,58 @@ def geometry(terrain: Terrain) -> Shapes:
 # ------------------------------------------------------------------------------------------ model
 HFIELD_BASE_M: Final = 0.1
 """Depth of a height field's solid base below the floor, m (MuJoCo needs one)."""
+SLOPE_BASE_M: Final = 0.1
+"""How far below the floor a slope's tilted box reaches at its deepest edge, m."""
 
 
 def add_to_spec(spec: mujoco.MjSpec, terrain: Terrain, contype: int, conaffinity: int, friction: list[float]) -> None:
-    """Add the terrain's shapes to the world body of `spec`, colliding as the floor does (same contact bits
-    and friction). Names: terrain_block_{i}, terrain_slope_{i}, terrain_rough_{i}."""
-    shapes = geometry(terrain)
+    """Add the terrain's shapes to `spec`, colliding as the floor does (same contact bits and friction). Each
+    feature is a static body, terrain_{k} (a child of the world, no joint), holding its shapes' geoms:
+    terrain_block_{i}, terrain_slope_{i}, terrain_rough_{i}, numbered over the whole terrain. A slope whose top
+    covers its tilted box's far end goes in as two blocks (`_slope_blocks`), the same solid above the floor.
+
+    Not in the world body: MuJoCo's broadphase pairs the world body's geoms with every body of every robot at
+    every step, whatever the distance (they are meant for floors), while a body of its own is paired only with
+    the bodies whose bounding boxes reach it. In the world body a course beside the robot cost 10-25 % of the
+    G1's step for nothing (benchmarks/terrain.py, docs/benchmarks.md); the contacts are the same either way.
+    One body per feature, not per shape: a body is one more box to sort in the broadphase at every step, and
+    a flight of stairs or a field of stones is one place.
+    """
     world = spec.worldbody
     common = dict(contype=contype, conaffinity=conaffinity, friction=friction, rgba=list(TERRAIN_RGBA),
                   group=TERRAIN_GROUP)
-    for i, block in enumerate(shapes.blocks):
-        world.add_geom(name=f"terrain_block_{i}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=list(block.centre),
-                       size=list(block.half), quat=list(block.quat_wxyz), **common)
-    for i, prism in enumerate(shapes.prisms):
-        spec.add_mesh(name=f"terrain_slope_{i}", uservert=prism.vertices.flatten().tolist(),
-                      userface=prism.faces.flatten().tolist())
-        world.add_geom(name=f"terrain_slope_{i}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"terrain_slope_{i}",
-                       **common)
-    for i, field in enumerate(shapes.fields):
-        top = max(float(field.heights.max()), 1e-6)  # never 0: the data is divided by it
-        rows, cols = field.heights.shape
-        # MuJoCo scales the field's data (0..1) by size[2]: the highest point gives the scale.
-        spec.add_hfield(name=f"terrain_rough_{i}", size=[*field.half, top, HFIELD_BASE_M], nrow=rows, ncol=cols,
-                        userdata=(field.heights / top).flatten().tolist())
-        world.add_geom(name=f"terrain_rough_{i}", type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=f"terrain_rough_{i}",
-                       pos=[*field.centre, 0.0], **common)
+    blocks = prisms = fields = 0
+    for k, feature in enumerate(terrain.features):
+        shapes = geometry(Terrain(features=(feature,)))
+        as_blocks = _slope_blocks(feature) if isinstance(feature, Slope) else None
+        if as_blocks is not None:  # the same solid above the floor, cheaper to collide with
+            shapes = Shapes(as_blocks, [], [])
+        body = world.add_body(name=f"terrain_{k}")
+        for block in shapes.blocks:
+            body.add_geom(name=f"terrain_block_{blocks}", type=mujoco.mjtGeom.mjGEOM_BOX, pos=list(block.centre),
+                          size=list(block.half), quat=list(block.quat_wxyz), **common)
+            blocks += 1
+        for prism in shapes.prisms:
+            name = f"terrain_slope_{prisms}"
+            spec.add_mesh(name=name, uservert=prism.vertices.flatten().tolist(),
+                          userface=prism.faces.flatten().tolist())
+            body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, **common)
+            prisms += 1
+        for field in shapes.fields:
+            name = f"terrain_rough_{fields}"
+            top = max(float(field.heights.max()), 1e-6)  # never 0: the data is divided by it
+            rows, cols = field.heights.shape
+            # MuJoCo scales the field's data (0..1) by size[2]: the highest point gives the scale.
+            spec.add_hfield(name=name, size=[*field.half, top, HFIELD_BASE_M], nrow=rows, ncol=cols,
+                            userdata=(field.heights / top).flatten().tolist())
+            body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=name, pos=[*field.centre, 0.0],
+                          **common)
+            fields += 1
+
+
+def ground_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """Which geoms are the ground (the floor, in the world body, and the terrain's, in their static bodies)."""
+    return (model.geom_bodyid == 0) | (model.geom_group == TERRAIN_GROUP)
 
 
 def ground_at(model: mujoco.MjModel, data: mujoco.MjData, x: float, y: float) -> float:
@@ -322,7 +378,7 @@ def ground_under(robot: Robot) -> float:
     corners = []
     for g in range(model.ngeom):
         body = int(model.geom_bodyid[g])
-        if body == 0 or (robot.slot is not None and not robot.slot.bodies.start <= body < robot.slot.bodies.stop):
+        if model.body_rootid[body] != robot.base_body_id:  # the floor, the terrain, another robot
             continue
         centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
         corners.append(data.geom_xpos[g] - base + (centre + signs * half) @ data.geom_xmat[g].reshape(3, 3).T)

@@ -86,6 +86,32 @@ def test_the_band_only_pulls_and_is_refused_where_it_cannot_act() -> None:
         fixed.band(BandRequest(verb="on"))
 
 
+def test_the_band_alone_and_with_pushes_writes_exactly_its_forces_and_follows_a_rebuild() -> None:
+    """The band alone takes a short way (its row written in place): it must write what the general way does
+    while pushes start and end beside it, on its own row and another, and act on a rebuilt robot's new data."""
+    world = g1()
+    (sim,) = world.robots
+    disturbances, data = sim.disturbances, world.data
+    base, hand = sim.robot.base_body_id, world.model.body("left_wrist_yaw_link").id
+    disturbances.band(BandRequest(verb="on", length_m=0.5))  # taut: a pull of some 300 N
+    world.step(2)
+    disturbances.push(PushRequest(direction=(1, 0, 0), magnitude_n=10, duration_s=0.004))  # 2 steps, on the base
+    disturbances.push(PushRequest(direction=(0, 0, 1), magnitude_n=30, duration_s=0.006, body="left_wrist_yaw_link"))
+    disturbances.push(PushRequest(direction=(0, 0, 1), magnitude_n=5, duration_s=0.002, body="left_wrist_yaw_link"))
+    for step in range(6):
+        world.step(1)
+        band = np.array(disturbances.band_force)
+        assert band[2] > 100
+        np.testing.assert_array_equal(data.xfrc_applied[base, :3], band + ([10.0, 0, 0] if step < 2 else 0.0))
+        hand_n = 35.0 if step == 0 else 30.0 if step < 3 else 0.0  # two pushes on one body add up
+        np.testing.assert_array_equal(data.xfrc_applied[hand, :3], [0, 0, hand_n])
+        others = np.delete(data.xfrc_applied, [base, hand], axis=0)
+        assert not np.any(others) and not np.any(data.xfrc_applied[:, 3:])
+    world.rebuild("floating")
+    world.step(1)
+    assert world.data is not data and world.data.xfrc_applied[base, 2] == disturbances.band_force[2] > 100
+
+
 def test_push_refusals_name_the_bound_and_change_nothing() -> None:
     world = g1()
     disturbances = world.robots[0].disturbances

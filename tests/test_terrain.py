@@ -16,6 +16,7 @@ import pytest
 
 from zensim.robots import robot_files
 from zensim.robots.builder import FLOOR_BIT, ROBOT_BIT, Placement, build, build_world
+from zensim.robots import terrain as terrain_module
 from zensim.robots.terrain import TerrainError, add_to_spec, ground_at, load_terrain, rough_heights, terrain_from_table
 from zensim.schemas import Codec, RobotInfo
 from zensim.schemas.messages import RoughGround, Terrain
@@ -115,6 +116,47 @@ class TestHeights:
         assert [round(float(v), 8) for v in grid[1, 1:3]] == [0.18025973, 0.13619031]
 
 
+def ground_model(terrain: Terrain) -> tuple[mujoco.MjModel, mujoco.MjData]:
+    """The terrain alone in a model, as add_to_spec puts it in (kinematics done, for ray casts)."""
+    spec = mujoco.MjSpec()
+    add_to_spec(spec, terrain, FLOOR_BIT, FLOOR_BIT, [1.0, 0.005, 0.0001])
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    return model, data
+
+
+class TestSlopeAsBlocks:
+    """A slope whose top covers its tilted box's far end goes into the model as two boxes: the same ground as
+    its prism (geometry(), what the viewer draws) everywhere above the floor, edges and crest included."""
+
+    @pytest.mark.parametrize("slope", [
+        {"angle_deg": 10, "length_m": 3, "width_m": 2, "top_m": 1, "at": [2, 0]},
+        {"angle_deg": 3, "length_m": 3, "width_m": 3, "top_m": 1, "at": [0, -1.5], "direction_deg": 90},
+        {"angle_deg": 30, "length_m": 1, "width_m": 1.5, "top_m": 0.34, "at": [-1, 2], "direction_deg": -143},
+    ])
+    def test_boxes_give_the_prisms_heights(self, slope: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
+        terrain = terrain_from_table({"features": [{"type": "slope", **slope}]})
+        boxes = ground_model(terrain)
+        assert set(boxes[0].geom_type.tolist()) == {int(mujoco.mjtGeom.mjGEOM_BOX)}
+        monkeypatch.setattr(terrain_module, "_slope_blocks", lambda f: None)
+        prism = ground_model(terrain)
+        assert set(prism[0].geom_type.tolist()) == {int(mujoco.mjtGeom.mjGEOM_MESH)}
+        yaw, reach = math.radians(slope.get("direction_deg", 0)), slope["length_m"] + slope["top_m"]
+        points = []
+        for s in np.linspace(-0.2, reach + 0.2, 41):  # along the heading, past both ends
+            for lateral in np.linspace(-slope["width_m"] / 2 - 0.1, slope["width_m"] / 2 + 0.1, 9):  # and its sides
+                points.append((slope["at"][0] + s * math.cos(yaw) - lateral * math.sin(yaw),
+                               slope["at"][1] + s * math.sin(yaw) + lateral * math.cos(yaw)))
+        np.testing.assert_allclose(heights(*boxes, points), heights(*prism, points), atol=1e-6)
+        assert heights(*boxes, points).max() == pytest.approx(slope["length_m"] * math.tan(math.radians(slope["angle_deg"])))
+
+    def test_a_top_too_short_to_cover_the_far_end_keeps_the_prism(self) -> None:
+        # 30 degrees over 1 m rises 0.577 m; the tilted box's far end leans 0.333 m out at the floor.
+        terrain = terrain_from_table({"features": [{"type": "slope", "angle_deg": 30, "length_m": 1, "top_m": 0.3}]})
+        assert ground_model(terrain)[0].geom_type.tolist() == [int(mujoco.mjtGeom.mjGEOM_MESH)]
+
+
 def drop_box(terrain: Terrain, xy: tuple[float, float], half: float = 0.1, seconds: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
     """A free 20 cm cube dropped from 1 m above `xy` onto `terrain` (terrain.add_to_spec: as the sim builds it);
     its centre and its up axis (world frame) once it has come to rest."""
@@ -123,14 +165,14 @@ def drop_box(terrain: Terrain, xy: tuple[float, float], half: float = 0.1, secon
     spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], contype=FLOOR_BIT | ROBOT_BIT,
                             conaffinity=FLOOR_BIT | ROBOT_BIT)
     add_to_spec(spec, terrain, FLOOR_BIT | ROBOT_BIT, FLOOR_BIT | ROBOT_BIT, [1.0, 0.005, 0.0001])
-    body = spec.worldbody.add_body(pos=[xy[0], xy[1], 1.0])
+    body = spec.worldbody.add_body(name="cube", pos=[xy[0], xy[1], 1.0])
     body.add_freejoint()
     body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[half] * 3, mass=1.0, friction=[1.0, 0.005, 0.0001])
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_step(model, data, nstep=int(seconds / model.opt.timestep))
     assert np.linalg.norm(data.qvel[:3]) < 1e-3, "the box has not come to rest"
-    return data.qpos[:3].copy(), data.xmat[1].reshape(3, 3)[:, 2].copy()
+    return data.qpos[:3].copy(), data.body("cube").xmat.reshape(3, 3)[:, 2].copy()  # the terrain's bodies come first
 
 
 class TestDroppedBox:

@@ -24,6 +24,7 @@ import math
 from dataclasses import dataclass
 
 import mujoco
+import numpy as np
 
 from zensim.robots.builder import Robot
 from zensim.schemas import BandRequest, BandState, PushRequest, PushState, short_repr
@@ -102,8 +103,24 @@ class Disturbances:
         """The band's fixed point, world frame, m: above the robot's spawn place."""
         self.band_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.pushes: list[Push] = []
-        self._written: set[int] = set()
+        self._written: frozenset[int] = frozenset()
         """Rows of xfrc_applied written for the last step (cleared at the next step that does not need them)."""
+        self._push_forces: dict[int, tuple[float, float, float]] | None = None
+        """The pushes' force on each body they act on, summed in their order; None: to be summed again (a push
+        started or ended since)."""
+        self._push_rows: frozenset[int] = frozenset()
+        """The rows the pushes write; with the base's (the band's) in _push_rows_band."""
+        self._push_rows_band: frozenset[int] = frozenset()
+        # Views into `data`'s own arrays (MuJoCo never moves them; a rebuild's new data comes through here):
+        # indexing data.xpos or data.qvel anew makes a fresh array each time, a third of the band's cost.
+        base = robot.base_body_id
+        self._base_only = frozenset((base,))
+        self._rows: dict[int, np.ndarray] = {}
+        """Each row's force part of xfrc_applied written so far, as a view (`_row`)."""
+        self._base_force = self._row(base)
+        self._base_pos = data.xpos[base]
+        self._base_vel = data.qvel[robot.free_dof_adr:robot.free_dof_adr + 3] if self.floating else None
+        """The base's linear velocity, world frame (the free joint's first 3 dofs); None in the fixed mode."""
 
     # --- requests (physics lock held) ----------------------------------------------------------
 
@@ -117,6 +134,7 @@ class Disturbances:
             raise DisturbanceError(f"ctl/push: {MAX_ACTIVE_PUSHES} pushes act already; wait for one to end")
         push = self.plan(request)
         self.pushes.append(push)
+        self._push_forces = None
         self.pushes_applied += 1
         self.last_push = state = push.state(float(self.robot.model.opt.timestep))
         return state
@@ -191,9 +209,10 @@ class Disturbances:
     def clear_pushes(self) -> None:
         """End every push now (a reset): their rows are cleared at once."""
         self.pushes.clear()
+        self._push_forces = None
         for row in self._written:
             self.data.xfrc_applied[row, :3] = 0.0
-        self._written.clear()
+        self._written = frozenset()
         self.band_force = (0.0, 0.0, 0.0)
 
     # --- stepping ------------------------------------------------------------------------------
@@ -206,40 +225,76 @@ class Disturbances:
         """Before one physics step: write this step's forces (and clear last step's rows no force needs now).
 
         Plain floats, not numpy: on 3-vectors numpy's call overhead is the cost (the band's force in numpy took
-        5 us a step, a sixth of the G1's whole step; benchmarks/disturbances.py).
+        5 us a step, a sixth of the G1's whole step; benchmarks/disturbances.py). What stays the same from step
+        to step is worked out once: the pushes' sums and their rows until a push starts or ends, each row's view
+        into xfrc_applied; the band alone, the case that runs for minutes, writes its row and nothing else.
         """
-        xfrc = self.data.xfrc_applied
-        forces: dict[int, list[float]] = {}
-        if self.band_holds():
-            self.band_force = self._band_force()
-            forces[self.robot.base_body_id] = list(self.band_force)
-        if self.pushes:
+        band = self.band_holds()
+        if not self.pushes:
+            if band and self._written == self._base_only:
+                fx, fy, fz = self.band_force = self._band_force()
+                row = self._base_force
+                row[0], row[1], row[2] = fx, fy, fz
+                return
+            forces: dict[int, tuple[float, float, float]] = {}
+            rows = self._base_only if band else frozenset()
+        else:
+            forces = self._push_forces if self._push_forces is not None else self._sum_pushes()
+            rows = self._push_rows_band if band else self._push_rows
+            ended = False
             for push in self.pushes:
-                total = forces.get(push.body_id)
-                if total is None:
-                    forces[push.body_id] = list(push.force)
-                else:
-                    forces[push.body_id] = [a + b for a, b in zip(total, push.force)]
                 push.steps_left -= 1
-            self.pushes = [push for push in self.pushes if push.steps_left > 0]
-        if self._written:
-            for row in self._written.difference(forces):
-                xfrc[row, :3] = 0.0
-        for row, force in forces.items():
-            xfrc[row, :3] = force
-        self._written = set(forces)
+                ended = ended or push.steps_left <= 0
+            if ended:  # this step is its last: summed again for the next
+                self.pushes = [push for push in self.pushes if push.steps_left > 0]
+                self._push_forces = None
+        base = self.robot.base_body_id
+        if band:
+            bx, by, bz = self.band_force = self._band_force()
+            pushed = forces.get(base)
+            if pushed is not None:
+                bx, by, bz = bx + pushed[0], by + pushed[1], bz + pushed[2]
+            row = self._base_force
+            row[0], row[1], row[2] = bx, by, bz
+        for body, (fx, fy, fz) in forces.items():
+            if not (band and body == base):
+                row = self._row(body)
+                row[0], row[1], row[2] = fx, fy, fz
+        if self._written != rows:
+            for body in self._written - rows:
+                row = self._row(body)
+                row[0] = row[1] = row[2] = 0.0
+            self._written = rows
+
+    def _row(self, body: int) -> np.ndarray:
+        """The force part of `body`'s row of xfrc_applied, a view made once."""
+        row = self._rows.get(body)
+        if row is None:
+            row = self._rows[body] = self.data.xfrc_applied[body, :3]
+        return row
+
+    def _sum_pushes(self) -> dict[int, tuple[float, float, float]]:
+        """The pushes' forces summed per body, and their rows (kept until a push starts or ends)."""
+        forces: dict[int, tuple[float, float, float]] = {}
+        for push in self.pushes:
+            total = forces.get(push.body_id)
+            forces[push.body_id] = push.force if total is None else (
+                total[0] + push.force[0], total[1] + push.force[1], total[2] + push.force[2])
+        self._push_forces = forces
+        self._push_rows = frozenset(forces)
+        self._push_rows_band = self._push_rows | self._base_only
+        return forces
 
     def _band_force(self) -> tuple[float, float, float]:
         """The band's pull on the base now: spring past its length, damped along it, never a push."""
-        robot, data = self.robot, self.data
         ax, ay, az = self.anchor
-        px, py, pz = data.xpos[robot.base_body_id].tolist()
+        px, py, pz = self._base_pos.tolist()
         dx, dy, dz = ax - px, ay - py, az - pz
         distance = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if distance <= self.band_length_m or distance == 0.0:
+        if distance <= self.band_length_m or distance == 0.0 or self._base_vel is None:
             return (0.0, 0.0, 0.0)
         ux, uy, uz = dx / distance, dy / distance, dz / distance
-        vx, vy, vz = data.qvel[robot.free_dof_adr:robot.free_dof_adr + 3].tolist()  # the base's, world frame
+        vx, vy, vz = self._base_vel.tolist()  # the base's, world frame
         pull = BAND_STIFFNESS_N_M * (distance - self.band_length_m) - BAND_DAMPING_N_S_M * (vx * ux + vy * uy + vz * uz)
         pull = max(pull, 0.0)
         return (pull * ux, pull * uy, pull * uz)

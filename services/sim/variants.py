@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 
 from zensim.robots.builder import Robot
+from zensim.robots.terrain import ground_geoms
 from zensim.schemas import Randomize, Variant
 
 STREAM_FRICTION: Final = 1
@@ -93,11 +94,12 @@ class Variants:
             ("actuator_length0", np.isin(np.arange(model.nu), robot.actuator_ids)))}
         """MuJoCo's constants derived from the masses (mj_setConst), by field: this robot's entries."""
         self._nominal_derived = {name: getattr(model, name)[own].copy() for name, own in self._derived.items()}
-        ground = model.geom_friction[model.geom_bodyid == 0]  # the floor and the terrain (the world body's)
+        on_ground = ground_geoms(model)  # the floor and the terrain
+        ground = model.geom_friction[on_ground]
         ground_max = ground.max(axis=0) if len(ground) else np.zeros(3)
         self._ground_friction = np.maximum(self._friction, ground_max)
         """What each of the robot's geoms nominally used against the ground: the pair's larger friction."""
-        self._ground_priority = int(model.geom_priority[model.geom_bodyid == 0].max(initial=0))
+        self._ground_priority = int(model.geom_priority[on_ground].max(initial=0))
         self.nominal_mass_kg = float(self._mass.sum())
         self.request: Randomize | None = None
         """The request of the variant in use; None: the nominal robot."""
