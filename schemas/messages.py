@@ -883,6 +883,9 @@ class RobotInfo(Message, frozen=True, tag="robot_info", kw_only=True):
     """The ground the robot stands on (`zensim sim --terrain`, a world file's `[terrain]`); null: the flat floor."""
     variant: Variant | None = None
     """The variant of the robot drawn at the last reset (ctl/reset `randomize`); null: the nominal robot."""
+    fall_tilt_rad: float | None = None
+    """The base's tilt from upright, rad, past which SimStatus says `fallen` (the robot's control.toml); null: it
+    never falls (the fixed mode). A client that judges falls from state/odom uses the sim's own figure."""
 
     def __post_init__(self) -> None:
         n = len(self.joint_names)

@@ -128,6 +128,8 @@ class ScenarioRunner:
         self.scenario = scenario
         self.states: queue.Queue[tuple[str, object]] = queue.Queue(MAX_QUEUED)
         self.joint_names: tuple[str, ...] = ()
+        self.fall_tilt_rad: float | None = None
+        """The sim's fall threshold (RobotInfo): falls are judged on the states, at their own sim time."""
         self._codecs: dict[str, Codec[Any]] = {keys.odom: Codec(Odometry), keys.sim_status: Codec(SimStatus), keys.joints: Codec(JointState)}
         self._subscribers: list[zenoh.Subscriber] = []
         self._fired: list[AnyEvent] = []
@@ -143,7 +145,8 @@ class ScenarioRunner:
         while True:
             try:
                 info = self._query(self.keys.robot_info + "?format=json", None, 2.0)
-                self.joint_names = msgspec.json.decode(info, type=RobotInfo).joint_names
+                robot = msgspec.json.decode(info, type=RobotInfo)
+                self.joint_names, self.fall_tilt_rad = robot.joint_names, robot.fall_tilt_rad
                 break
             except (TimeoutError, ValueError, zenoh.ZError, msgspec.DecodeError) as exc:
                 if time.monotonic() > deadline:
@@ -195,7 +198,7 @@ class ScenarioRunner:
                 subscriber.undeclare()
 
     def _play(self, stop: threading.Event, stall_timeout_s: float, start_timeout_s: float, recording: str) -> ScenarioResult:
-        trace = Trace()
+        trace = Trace(fall_tilt_rad=self.fall_tilt_rad)
         pending = list(self.scenario.events)
         outcomes: list[EventOutcome] = []
         pushes: list[tuple[float, tuple[float, ...], float]] = []

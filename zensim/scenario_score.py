@@ -94,6 +94,10 @@ class Trace:
     fell_at_s: float | None = None
     peak_tau: float = 0.0
     peak_joint: int = -1
+    fall_tilt_rad: float | None = None
+    """The sim's fall threshold (RobotInfo.fall_tilt_rad): a state tilted past it is a fall, at that state's sim
+    time; None: the status's `fallen` says it (at the status's time: wall-clock paced, so not the same in every
+    run)."""
 
     def add_odometry(self, t: float, pos: Sequence[float], quat_wxyz: Sequence[float]) -> None:
         w, x, y, z = quat_wxyz
@@ -103,7 +107,8 @@ class Trace:
         self.yaw.append(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
         # The base's z axis against the world's: cos(tilt) = 1 - 2 (x^2 + y^2).
         self.tilt.append(math.acos(max(-1.0, min(1.0, 1 - 2 * (x * x + y * y)))))
-        if self.fell_at_s is None and self.z[0] - pos[2] > FALLEN_HEIGHT_M:
+        if self.fell_at_s is None and (self.z[0] - pos[2] > FALLEN_HEIGHT_M or (
+                self.fall_tilt_rad is not None and self.tilt[-1] > self.fall_tilt_rad)):
             self.fell_at_s = t
 
     def add_torques(self, tau: Sequence[float]) -> None:
@@ -112,7 +117,8 @@ class Trace:
                 self.peak_tau, self.peak_joint = abs(value), index
 
     def fallen(self, t: float) -> None:
-        if self.fell_at_s is None:
+        """The status said fallen at `t`: a fall unless the states judge it themselves (`fall_tilt_rad`)."""
+        if self.fell_at_s is None and self.fall_tilt_rad is None:
             self.fell_at_s = t
 
     def command(self, t: float, velocity: tuple[float, float, float]) -> None:

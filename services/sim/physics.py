@@ -497,6 +497,7 @@ class Simulation:
             keys=keys.table(),
             terrain=self.terrain,
             variant=self.variants.variant,
+            fall_tilt_rad=robot.control.model.fall_tilt_rad if robot.mode == "floating" else None,
         )
 
 
