@@ -230,8 +230,10 @@ class ScenarioRunner:
                 if message.fallen:
                     trace.fallen(max(0.0, message.sim_time_s - t0))
                 t = message.sim_time_s - t0
-                if t < now or (t == now and started):
-                    continue  # nothing new: the states say more, and a waiting sim is not progress
+                if trace.times or t < now or (t == now and started):
+                    # Once states flow they are the clock: a status goes at 10 Hz of wall time, and under lockstep
+                    # its sim time runs ahead of the states read so far (it ended a run one state early, once).
+                    continue
             elif isinstance(message, JointState):
                 trace.add_torques(message.tau)
                 continue
@@ -246,7 +248,7 @@ class ScenarioRunner:
                     break
                 trace.add_odometry(t, message.pos, message.quat_wxyz)
                 if t < now:
-                    continue  # a status already took the clock here: the state only adds to the trace
+                    continue  # a status took the clock here before the states came: the state only adds to the trace
             last_state, timeout_s, now, started = time.monotonic(), stall_timeout_s, t, True
             first_wall = first_wall or last_state
             self._due(pending, t, t0, outcomes, pushes, trace)
