@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -14,7 +15,7 @@ from zensim.sim.mjdata import read_base, read_imu
 from zensim.sim.service import load_world
 from zensim.sim.settings import SimSettings
 from zensim.sim.world import World
-from zensim.sim.world_states import States
+from zensim.sim.world_states import States, _turn_back
 from zensim.sim.world_file import read_world_file
 
 
@@ -227,3 +228,18 @@ def test_drift_delay_and_dropouts_act_on_their_own_robot_and_a_delay_keeps_one_r
     assert only_arm[0].joints is not None, "a reset's states of another robot: a's dropout draws nothing"
     assert a.faults.withheld == withheld and list(b.faults._ring) == ring
     assert states[2].joints is not None
+
+
+def test_the_body_frame_turn_in_plain_floats_is_mujocos_to_the_bit() -> None:
+    """A robot alone's angular velocity is turned into the body frame in plain floats (world_states._turn_back):
+    the very figures MuJoCo's mju_rotVecQuat gives, for any orientation and size (and the zero vector)."""
+    rng = np.random.default_rng(7)
+    for scale in (0.0, 1e-6, 1.0, 50.0):
+        for _ in range(2000):
+            quat = rng.normal(size=4)
+            quat /= np.linalg.norm(quat)
+            vec = rng.normal(size=3) * scale
+            out = np.zeros(3)
+            mujoco.mju_rotVecQuat(out, vec, np.array([quat[0], -quat[1], -quat[2], -quat[3]]))
+            assert _turn_back(quat.tolist(), vec.tolist()) == out.tolist()
+    assert _turn_back([1.0, 0.0, 0.0, 0.0], [0.1, 0.2, 0.3]) == [0.1, 0.2, 0.3]
