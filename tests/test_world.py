@@ -241,5 +241,5 @@ def test_the_body_frame_turn_in_plain_floats_is_mujocos_to_the_bit() -> None:
             vec = rng.normal(size=3) * scale
             out = np.zeros(3)
             mujoco.mju_rotVecQuat(out, vec, np.array([quat[0], -quat[1], -quat[2], -quat[3]]))
-            assert _turn_back(quat.tolist(), vec.tolist()) == out.tolist()
-    assert _turn_back([1.0, 0.0, 0.0, 0.0], [0.1, 0.2, 0.3]) == [0.1, 0.2, 0.3]
+            assert list(_turn_back(quat.tolist(), vec.tolist())) == out.tolist()
+    assert _turn_back([1.0, 0.0, 0.0, 0.0], [0.1, 0.2, 0.3]) == (0.1, 0.2, 0.3)
