@@ -316,7 +316,11 @@ def test_garbage_claiming_a_clients_own_source_does_not_starve_it(
     """Issue 27 item 3: a flood of garbage put under a good client's own zenoh source id (read off its samples,
     as any subscriber can) replaced each of the client's commands before a take (newest wins per source):
     its commands stopped applying (command age 51-163 ms median beside a 10 kHz flood). Now a source with
-    accepted and refused commands keeps a uniform sample of its arrivals, tried newest first: the client's apply."""
+    accepted and refused commands keeps a uniform sample of its arrivals, tried newest first: the client's apply.
+
+    The bounds: median under 60 ms (starved, it was 51-163 ms) and p90 under 200 ms. On 2026-11-27 evening this
+    machine gave p90 75-143 ms for the code of the last landed commit and of this one alike (p50 25-39 ms): the
+    100 ms p90 bound set when the fix went in failed the landed code 4 times of 4, so it measured the machine."""
     keys = Keys(robot_id)
     status = Latest(zsession, keys.sim_status, SimStatus)
     status.keep_history = True
@@ -346,7 +350,7 @@ def test_garbage_claiming_a_clients_own_source_does_not_starve_it(
     median, p90 = ages[len(ages) // 2], ages[len(ages) * 9 // 10]
     print(f"\nflood: {out.strip()}; good client's command age p50 {median * 1e3:.0f} ms, p90 {p90 * 1e3:.0f} ms, "
           f"max {ages[-1] * 1e3:.0f} ms over {len(ages)} statuses")
-    assert len(ages) > 50 and median < 0.06 and p90 < 0.1, (median, p90, ages[-5:])
+    assert len(ages) > 50 and median < 0.06 and p90 < 0.2, (median, p90, ages[-5:])
 
 
 FORGED_FLOOD = r"""
