@@ -890,6 +890,8 @@ class RobotInfo(Message, frozen=True, tag="robot_info", kw_only=True):
     def __post_init__(self) -> None:
         n = len(self.joint_names)
         _check_unique("joint_names", self.joint_names)
+        if self.fall_tilt_rad is not None:  # a description is input too (a recording, a hostile sim)
+            _check_in("fall_tilt_rad", self.fall_tilt_rad, 0.0, math.pi)
         for field in ("q_min", "q_max", "effort_limit", "velocity_limit"):
             _check_length(field, getattr(self, field), n, "joint_names")
         vectors = [(f"default_q[{mode}]", q) for mode, q in self.default_q.items()]

@@ -235,3 +235,19 @@ def test_under_a_state_delay_the_lockstep_walker_keeps_the_sim_moving(walker):
     assert walked.pos[2] > 0.6, "still standing"
     status = walker.loco_status.wait(lambda s: s.stall_ticks >= 1, 10, "a tick on the stalled sim")
     assert status.stall_ticks <= 3, status  # once as the delay starts (a few under load), not every state
+
+
+def test_a_flood_of_forged_waiting_statuses_gives_at_most_one_stall_tick_per_period(walker):
+    """state/sim is input too: 2000 forged 'lockstep, waiting at one instant' statuses in a burst make at most a
+    couple of stall ticks (one per 0.2 s of wall time), not a flood of commands into the sim."""
+    walker.stand_up()
+    before = walker.loco_status.wait(lambda s: s.policy_steps > 0, 10, "a status").stall_ticks
+    forged = json.dumps({"type": "sim_status", "sim_time_s": 123.0, "rtf": 0.0, "paused": False, "mode": "floating",
+                         "fallen": False, "clock": "lockstep", "waiting": True})
+    started = time.monotonic()
+    for _ in range(2000):
+        walker.session.put(walker.keys.sim_status, forged)
+    elapsed = time.monotonic() - started
+    time.sleep(0.5)
+    after = walker.loco_status.wait(lambda s: True, 10, "a status").stall_ticks
+    assert after - before <= 2 + elapsed / 0.2, (before, after, elapsed)

@@ -24,13 +24,18 @@ from zensim.schemas import (
     Keys,
     MotorCommand,
     ResetRequest,
+    RobotInfo,
     StepRequest,
     WorldInfo,
     check_robot_id,
     decode_scalar,
     is_json,
 )
+from zensim.robots import robot_files
+from zensim.robots.builder import mode_figures
 from zensim.schemas import generate
+from zensim.sim.physics import Limits
+from zensim.sim.world import World
 from zensim.schemas.topics import TOPICS
 from support import REPO
 
@@ -309,3 +314,14 @@ class TestKeys:
         carried = {t.message for t in TOPICS} | {t.reply for t in TOPICS}
         missing = [m.__name__ for m in WIRE_TYPES if m not in carried]
         assert not missing, f"messages on no topic: {missing}"
+
+
+@pytest.mark.parametrize("value", [b"1e300", b"-1", b"4.0", b'"steep"'])
+def test_a_description_with_an_absurd_fall_threshold_is_refused_whole(value: bytes) -> None:
+    """RobotInfo.fall_tilt_rad comes from a sim, or from a recording anyone can write: a tilt beyond [0, pi] rad
+    (or not a number) refuses the whole description; a sane one decodes."""
+    sim = World.alone("g1", robot_files("g1"), "floating", Limits(5000.0, 500.0), 0.5).robots[0]
+    good = msgspec.json.encode(sim.robot_info(Keys("g1"), 100, 10, {"floating": mode_figures(sim.files, "floating", None)}))
+    assert msgspec.json.decode(good, type=RobotInfo).fall_tilt_rad == 1.0
+    with pytest.raises((msgspec.ValidationError, msgspec.DecodeError)):
+        msgspec.json.decode(good.replace(b'"fall_tilt_rad":1.0', b'"fall_tilt_rad":' + value), type=RobotInfo)

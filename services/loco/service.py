@@ -64,6 +64,9 @@ STALLED_STATUSES = 3
 """Statuses in a row (10 Hz, wall clock: 0.2-0.3 s) of a lockstep sim waiting at one instant, while the controller is
 active, after which it ticks on its newest state. Never in a run whose every state is due (one per policy period):
 there the sim waits only for the milliseconds a tick takes, so a run stays the same to the bit."""
+STALL_TICK_PERIOD_S = 0.2
+"""At most one stall tick per this much wall time: statuses are input too, and a flood of forged `waiting` ones must
+not become a flood of commands (a real sim says it at 10 Hz)."""
 GIL_SWITCH_INTERVAL_S = 0.0002
 """As in the sim and the adapter: a state callback that wakes never waits CPython's default 5 ms."""
 
@@ -95,6 +98,7 @@ class LocoService:
         """Velocity commands with `at_s`, waiting for their tick."""
         self._last_velocity_now_s = 0.0
         self._stalled: tuple[float | None, int] = (None, 0)
+        self._last_stall_tick = -math.inf
         """A lockstep sim waiting at one instant: that instant, and how many statuses in a row said so."""
         self._seq = 0
         self._last_request_status = 0.0
@@ -175,11 +179,13 @@ class LocoService:
             else:
                 at, count = self._stalled
                 self._stalled = (status.sim_time_s, count + 1 if at == status.sim_time_s else 1)
-                if self._stalled[1] >= STALLED_STATUSES and self.controller.state.active and self._latest is not None:
+                now = time.monotonic()
+                if (self._stalled[1] >= STALLED_STATUSES and self.controller.state.active and self._latest is not None
+                        and now - self._last_stall_tick >= STALL_TICK_PERIOD_S):
                     # The lockstep sim has waited on us at one instant for a few statuses: no state came that was
                     # due for a tick (a state delay repeated an instant; a dropout withheld them). We are its clock:
                     # a command from the newest state we have moves it on, as a real controller's timer would.
-                    self._stalled = (None, 0)
+                    self._stalled, self._last_stall_tick = (None, 0), now
                     self.counts["stall_ticks"] += 1
                     command = self._tick(force=True)
         self._put(command)
