@@ -72,7 +72,7 @@ from .disturbances import DisturbanceError
 from .faults import FaultError
 from .physics import CommandError
 from .world import WHOLE_WORLD
-from .requests import Request, Requests, run_guarded
+from .requests import Request, Requests, failures, run_guarded
 from .schedule import ScheduleError
 from .world_states import States
 
@@ -439,9 +439,14 @@ class RobotEndpoint:
         def run() -> None:  # at its time, on the thread that steps: what no longer fits is refused then
             try:
                 act()
+                return
             except (DisturbanceError, FaultError) as exc:
-                self.sim.last_error = self.request_refusals.refuse(
-                    self.keys.ctl(verb), f"ctl/{verb} scheduled for {at_s:.6g} s, refused at its time: {exc}")
+                reason = str(exc)
+            except Exception as exc:  # a bug must not take the stepping thread down (run_guarded's rule)
+                failures.exception("ctl/%s scheduled for %.6g s failed", verb, at_s)
+                reason = bounded(f"{type(exc).__name__}: {exc}")
+            self.sim.last_error = self.request_refusals.refuse(
+                self.keys.ctl(verb), f"ctl/{verb} scheduled for {at_s:.6g} s, refused at its time: {reason}")
 
         due = world.schedule.add(self.index, at_s, world.sim_time_s, world.steps, world.timestep_s, run)
         return world.sim_time_s + (due - world.steps) * world.timestep_s

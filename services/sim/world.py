@@ -181,30 +181,32 @@ class World:
         blind = opt.disableflags | SENSORS_OFF
         seeing = blind & ~SENSORS_OFF
         opt.disableflags = blind
-        if batched:
-            for sim in sims:
-                sim.apply_targets(check_watchdog)
-            mujoco.mj_step2(model, data)
-            if n > 2:
-                mujoco.mj_step(model, data, nstep=n - 2)
-            if sensed:
-                opt.disableflags = seeing
-            mujoco.mj_step(model, data)
-            mujoco.mj_step1(model, data)
-        for i in range(0 if batched else n):
-            if schedule.next_step <= self.steps + i:  # requests due before this step (a push, a fault): now
-                schedule.run_due(self.steps + i)
-                disturbed = [sim.disturbances for sim in sims if sim.disturbances.active()]
-            for sim in sims:
-                sim.apply_targets(check_watchdog, i)
-            check_watchdog = False
-            for disturbances in disturbed:
-                disturbances.apply()
-            if sensed and i == n - 1:
-                opt.disableflags = seeing
-            mujoco.mj_step2(model, data)
-            mujoco.mj_step1(model, data)
-        opt.disableflags = seeing
+        try:
+            if batched:
+                for sim in sims:
+                    sim.apply_targets(check_watchdog)
+                mujoco.mj_step2(model, data)
+                if n > 2:
+                    mujoco.mj_step(model, data, nstep=n - 2)
+                if sensed:
+                    opt.disableflags = seeing
+                mujoco.mj_step(model, data)
+                mujoco.mj_step1(model, data)
+            for i in range(0 if batched else n):
+                if schedule.next_step <= self.steps + i:  # requests due before this step (a push, a fault): now
+                    schedule.run_due(self.steps + i)
+                    disturbed = [sim.disturbances for sim in sims if sim.disturbances.active()]
+                for sim in sims:
+                    sim.apply_targets(check_watchdog, i)
+                check_watchdog = False
+                for disturbances in disturbed:
+                    disturbances.apply()
+                if sensed and i == n - 1:
+                    opt.disableflags = seeing
+                mujoco.mj_step2(model, data)
+                mujoco.mj_step1(model, data)
+        finally:  # whatever happened in the steps, the model leaves here computing its sensors
+            opt.disableflags = seeing
         self._unsensed = not sensed
         self.steps += n
         for sim in sims:
