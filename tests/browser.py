@@ -114,7 +114,7 @@ class Browser:
 
     async def _connect(self) -> None:
         self._ws = await websocket_connect(self._ws_url, max_message_size=256 * 1024 * 1024)
-        asyncio.ensure_future(self._reader())
+        self._reading = asyncio.ensure_future(self._reader())
 
     async def _reader(self) -> None:
         while True:
@@ -252,7 +252,9 @@ class Browser:
         self.log_path.unlink(missing_ok=True)
 
     async def _close_ws(self) -> None:
+        # Wait for the close to finish (the reader sees it), so the socket is not left to the garbage collector.
         self._ws.close()
+        await asyncio.wait_for(self._reading, 2.0)
 
     def __enter__(self) -> Browser:
         return self

@@ -117,6 +117,21 @@ def descendants(pid: int) -> list[tuple[int, int | None]]:
     return [(child, _start_time(child)) for child in found]
 
 
+async def close_quietly(conn: Any) -> None:
+    """Close a tornado websocket and wait for the close to finish, so its socket is not left to the garbage
+    collector (a ResourceWarning at the end of the run, an error under filterwarnings=error)."""
+    import asyncio
+
+    import tornado.websocket
+
+    conn.close()
+    try:
+        while await asyncio.wait_for(conn.read_message(), 2.0) is not None:
+            pass
+    except (asyncio.TimeoutError, tornado.websocket.WebSocketClosedError):
+        pass
+
+
 def wait_subscribed(session, key: str, timeout_s: float, what: str) -> None:
     """Wait until some subscriber on the network matches `key` (zenoh's matching status): a put made
     after this reaches it, where one made before the subscription was known may be lost."""

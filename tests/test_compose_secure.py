@@ -127,6 +127,7 @@ def test_viewer_page_works_through_the_secured_stack(stack: Secured) -> None:
     bare = f"http://127.0.0.1:{stack.viz_port}/"
     with pytest.raises(urllib.error.HTTPError) as refused:
         urllib.request.urlopen(bare, timeout=10)
+    refused.value.close()  # an HTTPError holds the response's socket until closed
     assert refused.value.code == 403
     printed = re.findall(r"\?token=([A-Za-z0-9_-]+)", stack.logs())
     assert printed, "the viz printed no URL with its token"

@@ -427,6 +427,7 @@ def probe_main(connect: str, robot_id: str) -> int:
                         with opener.open(request["url"], timeout=10) as response:
                             reply.update(status=response.status, bytes=len(response.read()))
                     except urllib.error.HTTPError as exc:
+                        exc.close()  # an HTTPError holds the response's socket until closed
                         reply.update(status=exc.code)
                 elif op == "ws":
                     opened = threading.Event()

@@ -331,8 +331,9 @@ def test_robot_description_meshes_load_from_where_it_says(official_g1_dir, tmp_p
         # The server serves the robot's meshes and nothing else.
         root = urls[0].split("/meshes/")[0]
         for path in ("/etc/passwd", "/meshes/../g1_29dof.urdf", "/meshes/nothere.STL"):
-            with pytest.raises(urllib.error.HTTPError, match="404"):
+            with pytest.raises(urllib.error.HTTPError, match="404") as refused:
                 urllib.request.urlopen(root + path, timeout=10)
+            refused.value.close()  # an HTTPError holds the response's socket until closed
         print(f"[ros1] {len(fetched)} meshes, {sum(map(len, fetched.values())) / 1e6:.1f} MB over http from the gateway")
     finally:
         stack.close()

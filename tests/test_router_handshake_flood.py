@@ -31,6 +31,8 @@ class SilentFlood:
         self.port, self.n, self.churn = port, n, churn
         self.sockets: list[socket.socket] = []
         self.opened = 0
+        self.held: list[int] = []
+        """How many it held at the end of each round, once it had reopened what was closed."""
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._keep, daemon=True)
 
@@ -63,13 +65,14 @@ class SilentFlood:
                 for sock in alive[:self.churn]:
                     sock.close()
                 alive = alive[self.churn:]
-            self.sockets = alive
-            while len(self.sockets) < self.n and not self._stop.is_set():
+            while len(alive) < self.n and not self._stop.is_set():
                 try:
-                    self.sockets.append(socket.create_connection(("127.0.0.1", self.port), timeout=1))
+                    alive.append(socket.create_connection(("127.0.0.1", self.port), timeout=1))
                     self.opened += 1
                 except OSError:
                     break
+            self.sockets = alive  # whole rounds only: a reader never sees the list between a prune and a refill
+            self.held.append(len(alive))
             self._stop.wait(0.05)
 
 
@@ -119,7 +122,9 @@ def test_sessions_still_join_while_hundreds_of_silent_connections_are_held(route
             sim = Service("sim", ["--mode", "fixed"], env, tmp_path)
             result = zensim_check(router_port, robot_id, "sim", 15)
             assert result.returncode == 0, result.stdout + result.stderr + sim.log()
-            assert len(flood.sockets) >= SILENT_CONNECTIONS * 0.9, "the flood did not hold its connections"
+            # Held all along, not only at one instant: the median round ended with 90 % of them open.
+            held = sorted(flood.held)
+            assert held[len(held) // 2] >= SILENT_CONNECTIONS * 0.9, f"the flood did not hold its connections: {held}"
     finally:
         if sim is not None:
             sim.stop()

@@ -21,21 +21,11 @@ import urllib.request
 
 import tornado.websocket
 
-from support import Service, free_port, wait_for
+from support import Service, close_quietly, free_port, wait_for
 from zensim.schemas import Keys, SimStatus
 from support import Latest
 
 FRAME_KIND = 2
-
-
-async def close_quietly(conn) -> None:
-    """Close a websocket and wait for the close to finish, so its socket is not left to the garbage collector."""
-    conn.close()
-    try:
-        while await asyncio.wait_for(conn.read_message(), 2.0) is not None:
-            pass
-    except (asyncio.TimeoutError, tornado.websocket.WebSocketClosedError):
-        pass
 
 
 def start_stack(start_service) -> tuple[Service, int]:
@@ -198,6 +188,7 @@ def test_a_nul_in_a_static_path_is_a_404_without_a_traceback(start_service) -> N
         urllib.request.urlopen(f"http://127.0.0.1:{port}/static/x%00.js", timeout=5)
         raise AssertionError("a NUL path was served")
     except urllib.error.HTTPError as exc:
+        exc.close()  # an HTTPError holds the response's socket until closed
         assert exc.code == 404, exc.code
     assert "Traceback" not in viz.log(), viz.log()[-2000:]
 

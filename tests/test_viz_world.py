@@ -18,7 +18,7 @@ import msgspec
 import pytest
 import zenoh
 
-from support import Service, free_port, wait_for
+from support import Service, close_quietly, free_port, wait_for
 from zensim.schemas import Codec, Keys, WorldInfo
 
 with warnings.catch_warnings():  # meshcat imports pyzmq's deprecated ioloop; the tests turn warnings into errors
@@ -105,7 +105,7 @@ def test_a_running_viz_refuses_a_hostile_world_info_and_keeps_serving(
                     if isinstance(message, str) and json.loads(message).get("type") == "status":
                         return json.loads(message)
             finally:
-                conn.close()
+                await close_quietly(conn)
 
         page = asyncio.run(status())
         assert "names robot 'x' twice" in page["description"] and page["robot"] is None, page
