@@ -27,8 +27,6 @@ from .topics import protocol_table, role_table, service_key_table
 
 SCHEMA_DIR = Path(__file__).resolve().parent / "jsonschema"  # the checkout's folder, not the install's link to it
 CHECKOUT = Path(__file__).resolve().parent.parent
-PROTOCOL_DOC = CHECKOUT / "docs" / "protocol.md"
-TABLE_BEGIN, TABLE_END = "<!-- topics:begin -->\n", "<!-- topics:end -->\n"
 SECTION = re.compile(r"<!-- (?P<name>[a-z0-9:_-]+):begin -->\n.*?<!-- (?P=name):end -->\n", re.DOTALL)
 
 
@@ -86,13 +84,6 @@ def render() -> dict[str, str]:
         schema = _annotate(msgspec.json.schema(message_type))
         files[f"{tag_of(message_type)}.json"] = json.dumps(schema, indent=2, sort_keys=True) + "\n"
     return files
-
-
-def with_protocol_table(doc: str) -> str:
-    """`doc` (docs/protocol.md's text) with the table between its markers rendered anew from the topics."""
-    head, rest = doc.split(TABLE_BEGIN, 1)
-    _, tail = rest.split(TABLE_END, 1)
-    return head + TABLE_BEGIN + protocol_table() + TABLE_END + tail
 
 
 def section_renderer(name: str) -> Callable[[], str]:

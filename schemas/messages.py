@@ -503,7 +503,6 @@ MAX_PUSH_DURATION_S: Final = 10.0
 """Longest push, s of sim time: a shove, not a constant force (a longer one is a scenario's business)."""
 MAX_BAND_LENGTH_M: Final = 5.0
 """Longest band, m: longer than the anchor's height above any spawn, so the band can let a robot stand."""
-BAND_VERBS: Final = ("on", "off", "lower", "raise")
 BandVerb = Literal["on", "off", "lower", "raise"]
 MAX_BODY_NAME_CHARS: Final = 256
 
@@ -608,7 +607,6 @@ class BandState(Message, frozen=True, tag="band_state", kw_only=True):
 
 # --- faults: ctl/faults (services/sim/faults.py) ---------------------------------
 
-FAULT_VERBS: Final = ("set", "clear")
 FaultVerb = Literal["set", "clear"]
 MAX_JOINT_FAULTS: Final = 256
 """Joint faults in one request (more than any robot has joints)."""
@@ -1324,7 +1322,6 @@ MAX_VELOCITY_TIMEOUT_S: float = 864000.0
 DEFAULT_VELOCITY_TIMEOUT_S: float = 0.5
 """A velocity command lapses after this much sim time unless the next one comes: a client that died
 (or lost its link) leaves a robot that stops and stands, not one that walks on."""
-LOCO_VERBS = ("zero_torque", "damp", "sit", "stand_up", "walk", "release")
 LocoVerb = Literal["zero_torque", "damp", "sit", "stand_up", "walk", "release"]
 
 

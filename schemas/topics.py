@@ -291,12 +291,6 @@ class Role:
     tokens: tuple[str, ...] = ()
     ros2: Literal["", "read", "write"] = ""
 
-    def writes(self) -> tuple[str, ...]:
-        return (*self.publishes, *self.serves, *self.tokens)
-
-    def reads(self) -> tuple[str, ...]:
-        return (*self.subscribes, *self.queries, *EVERY_ROLE_WATCHES)
-
 
 EVERY_ROLE_WATCHES: Final = ("alive/*", "claim/*")
 """Liveliness every role may watch (liveliness subscribers and queries): who is up is no secret."""

@@ -41,8 +41,9 @@ from zensim.common.settings import CommonSettings, ZenohSettings, settings_or_ex
 from zensim.common.wire import error_text
 from zensim.schemas import Keys, Variant
 
+from .check import is_alive
 from .course_plot import course_svg
-from .scenario import Recording, ScenarioRunner, ctl_faults_key, zenoh_env
+from .scenario import Recording, ScenarioRunner, zenoh_env
 from .scenario_file import AnyEvent, Faults, Loco, Push, Scenario, ScenarioError, Velocity
 from .scenario_score import ScenarioResult
 
@@ -256,7 +257,7 @@ def run_item(session: zenoh.Session, settings: CourseSettings, item: Item, seed:
         processes.start("sim", *sim_args)
         if settings.controller == "loco":
             processes.start("loco")
-            if not _alive(session, keys.alive("loco"), settings.start_timeout_s):
+            if not is_alive(session, keys.alive("loco"), settings.start_timeout_s):
                 return Row(item=item.name, seed=seed, skipped="zensim loco did not come up")
         runner = ScenarioRunner(session, keys, scenario)
         try:
@@ -295,15 +296,6 @@ def reset_robot(session: zenoh.Session, keys: Keys, request: dict[str, object]) 
             raise ValueError(str(answer.get("error"))[:200])
         return answer
     raise ValueError("no reply on ctl/reset")
-
-
-def _alive(session: zenoh.Session, key: str, timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if any(reply.ok is not None for reply in session.liveliness().get(key, timeout=1.0)):
-            return True
-        time.sleep(0.1)
-    return False
 
 
 def _fmt(value: float | None, spec: str) -> str:

@@ -143,9 +143,6 @@ class RecordingWriter:
     def has_channel(self, key: str) -> bool:
         return key in self._channels
 
-    def channel_count(self) -> int:
-        return len(self._channels)
-
     def write(self, key: str, message_type: type | None, json_data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
         self._sequence += 1
         self._writer.add_message(self._channel(key, message_type), log_time=log_time_ns, data=json_data,

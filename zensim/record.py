@@ -32,11 +32,12 @@ import zenoh
 
 from zensim.common.entry import fail, serve
 from zensim.common.logs import RateLimitedLog, setup_logging
+from zensim.common.robot_info import description_bytes
 from zensim.common.settings import CommonSettings, settings_or_exit
-from zensim.common.wire import error_text, payload_of, read_payload
+from zensim.common.wire import payload_of
 from zensim.schemas import Codec, DecodeError, Keys, RobotInfo, SimStatus, decode_scalar, topics
 from zensim.schemas.topics import TOPICS
-from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, STATE_CAP_BYTES
+from zensim.schemas.bounds import STATE_CAP_BYTES
 
 from .mcapfile import (MESH_ATTACHMENT_PREFIX, ROBOT_INFO_ATTACHMENT, URDF_ATTACHMENT, RecordingWriter, message_type_of, non_finite_at,
                        split_key, strict_json)
@@ -130,7 +131,7 @@ class Recorder:
                 described = msgspec.json.decode(info, type=RobotInfo)  # only a valid description is saved
                 urdf = self._get(self.keys.urdf)
                 meshes = self._meshes(described.mesh_paths)
-            except (TimeoutError, ValueError, zenoh.ZError, msgspec.DecodeError, msgspec.ValidationError) as exc:
+            except (LookupError, ValueError, zenoh.ZError, msgspec.DecodeError, msgspec.ValidationError) as exc:
                 logger.debug("no description yet: %s", exc)
                 stop.wait(INFO_RETRY_S)
                 continue
@@ -160,11 +161,7 @@ class Recorder:
         return meshes
 
     def _get(self, key: str) -> bytes:
-        for reply in self.session.get(key, timeout=2.0):
-            if reply.ok is not None:
-                return read_payload(reply.ok, DESCRIPTION_CAP_BYTES)[0]
-            raise ValueError(error_text(reply.err))
-        raise TimeoutError(f"no reply on {key}")
+        return description_bytes(self.session, key, 2.0)
 
     def drain(self, timeout_s: float) -> None:
         """Write what has arrived, waiting up to `timeout_s` for the first sample."""

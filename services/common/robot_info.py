@@ -17,7 +17,7 @@ import zenoh
 from zensim.common.logs import RateLimitedLog
 from zensim.common.wire import error_text, read_payload
 from zensim.schemas import Codec, DecodeError, Keys, RobotInfo
-from zensim.schemas.bounds import INFO_CAP_BYTES
+from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, INFO_CAP_BYTES
 
 T = TypeVar("T")
 
@@ -46,3 +46,19 @@ def fetch_robot(session: zenoh.Session, keys: Keys, timeout_s: float, stop: thre
         waiting.warning("no sim answers on %s yet; retrying", keys.robot_info)
         stop.wait(RETRY_PAUSE_S)
     return None
+
+
+def description_bytes(session: zenoh.Session, key: str, timeout_s: float) -> bytes:
+    """The first reply of a description queryable (info/urdf, info/mesh/...), size-capped.
+
+    Raises:
+        LookupError: no reply within `timeout_s`, an error reply, or one over the cap.
+    """
+    for reply in session.get(key, timeout=timeout_s):
+        if reply.ok is None:
+            raise LookupError(f"{key}: {error_text(reply.err)}")
+        try:
+            return read_payload(reply.ok, DESCRIPTION_CAP_BYTES)[0]
+        except DecodeError as exc:
+            raise LookupError(f"{key}: {exc}") from None
+    raise LookupError(f"no reply on {key} within {timeout_s} s")

@@ -34,7 +34,6 @@ import threading
 import time
 from dataclasses import dataclass
 
-import numpy as np
 import zenoh
 
 from zensim.common.follow import SimRun

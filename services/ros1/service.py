@@ -45,13 +45,12 @@ from tf2_msgs.msg import TFMessage
 
 from zensim.common.edges import check_edge, is_loopback
 from zensim.common.logs import FORMAT, RateLimitedLog
-from zensim.common.robot_info import fetch_robot
+from zensim.common.robot_info import description_bytes, fetch_robot
 from zensim.common.ros_state import StateIntake
 from zensim.common.session import StartupError
-from zensim.common.wire import Refusals, TypedPublisher, error_text, read_payload
-from zensim.schemas import (DecodeError, Imu, JointState, JointTargets, Keys, Odometry, Ros1Status, SimStatus,
+from zensim.common.wire import Refusals, TypedPublisher
+from zensim.schemas import (Imu, JointState, JointTargets, Keys, Odometry, Ros1Status, SimStatus,
                             VelocityCommand, bounded, encoding_of, topics)
-from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES
 
 from .mapping import (CommandGate, GuiChanges, InputError, P3dOdometry, RobotJoints, RosNames, resolve,
                       velocity_command, with_mesh_urls, xyzw)
@@ -424,22 +423,6 @@ def rosmaster_uri() -> str:
     import rosgraph
 
     return rosgraph.get_master_uri()
-
-
-def description_bytes(session: zenoh.Session, key: str, timeout_s: float) -> bytes:
-    """The first reply of a description queryable (info/urdf, info/mesh/...), size-capped.
-
-    Raises:
-        LookupError: no reply within `timeout_s`, an error reply, or one over the cap.
-    """
-    for reply in session.get(key, timeout=timeout_s):
-        if reply.ok is None:
-            raise LookupError(f"{key}: {error_text(reply.err)}")
-        try:
-            return read_payload(reply.ok, DESCRIPTION_CAP_BYTES)[0]
-        except DecodeError as exc:
-            raise LookupError(f"{key}: {exc}") from None
-    raise LookupError(f"no reply on {key} within {timeout_s} s")
 
 
 class RosShutdown:

@@ -40,14 +40,14 @@ import msgspec
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
-from zensim.common.robot_info import fetch_robot
+from zensim.common.robot_info import description_bytes, fetch_robot
 from zensim.common.ros_rules import InputError, P3dOdometry, RobotJoints, xyzw
 from zensim.common.ros_state import StateIntake
 from zensim.common.session import StartupError
 from zensim.common.token_bucket import TokenBucket
 from zensim.common.wire import Refusals, TypedPublisher, error_text, read_payload
 from zensim.schemas import Codec, DecodeError, Imu, JointState, Keys, LocoStatus, Odometry, Ros2Status, WorldInfo, topics
-from zensim.schemas.bounds import DESCRIPTION_CAP_BYTES, INFO_CAP_BYTES, MIN_CAP_BYTES
+from zensim.schemas.bounds import INFO_CAP_BYTES, MIN_CAP_BYTES
 
 from . import messages as msg
 from .cdr import CdrError
@@ -266,19 +266,8 @@ class Gateway:
 
 
 def read_urdf(session: zenoh.Session, keys: Keys, timeout_s: float) -> str:
-    """The sim's URDF (info/urdf), size-capped.
-
-    Raises:
-        LookupError: no reply within `timeout_s`, an error reply, or one over the cap.
-    """
-    for reply in session.get(keys.urdf, timeout=timeout_s):
-        if reply.ok is None:
-            raise LookupError(f"{keys.urdf}: {error_text(reply.err)}")
-        try:
-            return read_payload(reply.ok, DESCRIPTION_CAP_BYTES)[0].decode("utf-8", errors="replace")
-        except DecodeError as exc:
-            raise LookupError(f"{keys.urdf}: {exc}") from None
-    raise LookupError(f"no reply on {keys.urdf} within {timeout_s} s")
+    """The sim's URDF (info/urdf), size-capped; LookupError when there is none to read."""
+    return description_bytes(session, keys.urdf, timeout_s).decode("utf-8", errors="replace")
 
 
 def world_robots(session: zenoh.Session, world: str, timeout_s: float, stop: threading.Event) -> list[str] | None:

@@ -17,7 +17,6 @@ class Ros2Settings(CommonSettings, frozen=True, kw_only=True, forbid_unknown_fie
     """Settings of `zensim ros2`: ROS 2 topics on rmw_zenoh's keys and on DDS, zensim's keys on the other side."""
 
     env_prefix: ClassVar[str] = "ROS2"
-    first_release_names: ClassVar[bool] = False
     transports: Literal["zenoh,dds", "zenoh", "dds"] = "zenoh,dds"
     """Which ROS 2 middlewares see the robot: `zenoh` (rmw_zenoh's keys on zensim's own Zenoh session and
     router), `dds` (Cyclone DDS, for Fast DDS and Cyclone DDS nodes), or both."""

@@ -46,12 +46,13 @@ import random
 import threading
 import time
 from collections import defaultdict
-from collections.abc import Callable, Sequence
-from typing import Generic, TypeVar
+from collections.abc import Sequence
+from typing import Generic, Protocol, TypeVar
 
 import zenoh
 
 from zensim.common.logs import RateLimitedLog
+from zensim.schemas import Keys
 
 logger = logging.getLogger("zensim.sim")
 
@@ -183,35 +184,44 @@ class Candidates(Generic[T]):
         return len(self._kept)
 
 
+class CommandTaker(Protocol):
+    """What the intake needs of each robot (robot_endpoint.RobotEndpoint); its methods run on the intake's thread."""
+
+    commands: zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]]
+    """The robot's cmd/motors subscriber; its handler is the ring."""
+    keys: Keys
+    """keys.motors: a sample put on any other key expression (a wildcard) is refused."""
+
+    def take_command(self, sample: zenoh.Sample) -> bool:
+        """Decode, check and apply one sample; False when refused."""
+
+    def refuse_wildcard(self, sample: zenoh.Sample) -> None:
+        """Refuse one sample put on a wildcard (counted, logged at a bounded rate)."""
+
+    def count_shed(self) -> None:
+        """Count one sample shed unread (this thread is the counter's one writer)."""
+
+    def undecodable(self, sample: zenoh.Sample) -> str | None:
+        """Why a sample does not decode (None: it does), counting nothing: a contested source's older samples
+        are screened so (garbage fails in ~3 us) before one is taken."""
+
+    def refuse_undecodable(self, sample: zenoh.Sample, reason: str, count: int) -> None:
+        """Count `count` screened samples refused, with the last one and its reason."""
+
+
 class CommandIntake:
     """Takes every robot's command samples on one thread, until closed.
 
     Args:
-        rings: each robot's ring (the handler of its cmd/motors subscriber), in order.
-        keys: each robot's cmd/motors key: a sample put on any other key expression (a wildcard) is refused.
-        take: decodes, checks and applies one sample of robot `index` (on this thread); False when refused.
-        refuse: refuses one sample of robot `index` put on a wildcard (counted, logged at a bounded rate).
-        shed: counts one sample of robot `index` shed unread (this thread is the counter's one writer).
+        robots: every robot, in order.
         every_sample: take every sample in arrival order, shedding none (a robot alone under lockstep).
-        screen: why a sample of robot `index` does not decode (None: it does), counting nothing: a contested source's
-            older samples are screened so (garbage fails in ~3 us) before one is taken.
-        refuse_screened: counts `count` screened samples of robot `index` refused, with the last one and its reason.
     """
 
-    def __init__(self, rings: Sequence[zenoh.handlers.Handler[zenoh.Sample]], keys: Sequence[str],
-                 take: Callable[[int, zenoh.Sample], bool], refuse: Callable[[int, zenoh.Sample], None],
-                 shed: Callable[[int], None], every_sample: bool = False,
-                 screen: Callable[[int, zenoh.Sample], str | None] = lambda index, sample: None,
-                 refuse_screened: Callable[[int, zenoh.Sample, str, int], None] = lambda index, sample, reason, count: None,
-                 ) -> None:
-        self._rings = tuple(rings)
-        self._keys = tuple(keys)
-        self._take = take
-        self._refuse = refuse
-        self._shed = shed
+    def __init__(self, robots: Sequence[CommandTaker], every_sample: bool = False) -> None:
+        self._robots = tuple(robots)
+        self._rings = tuple(robot.commands.handler for robot in robots)
+        self._keys = tuple(robot.keys.motors for robot in robots)
         self._every_sample = every_sample
-        self._screen = screen
-        self._refuse_screened = refuse_screened
         self._turns = [Turns() for _ in self._rings]
         self._rng = random.Random()  # seeded from the OS: a flooder cannot predict which samples a reservoir keeps
         self._stop = threading.Event()
@@ -246,7 +256,7 @@ class CommandIntake:
                                 contested = source != WILDCARD and self._turns[index].contested(source)
                                 candidates = Candidates(SUSPECT_KEEP if contested else 1, self._rng)
                             if candidates.add(sample):
-                                self._shed(index)
+                                self._robots[index].count_shed()
                             pending[key] = candidates
                         sample = ring.try_recv()
             except zenoh.ZError:  # undeclared at shutdown
@@ -268,7 +278,7 @@ class CommandIntake:
                 chosen, shed = turns.choose([source for source, _ in sources])
                 for position in shed:
                     for _ in range(len(sources[position][1])):
-                        self._shed(index)
+                        self._robots[index].count_shed()
                 for position in chosen:
                     source, candidates = sources[position]
                     self._serve(index, source, candidates, checks_end)
@@ -276,14 +286,15 @@ class CommandIntake:
     def _serve(self, index: int, source: object, candidates: Candidates[zenoh.Sample], checks_end: float) -> None:
         """One source's turn: its samples newest first until one is accepted (the rest shed unread); a
         contested source's older ones only while the take's check budget lasts."""
+        robot = self._robots[index]
         accepted = refused = False
         screened: tuple[zenoh.Sample, str] | None = None
         screened_out = 0
         for tried, sample in enumerate(candidates.newest_first()):
             if accepted or (tried and time.thread_time() > checks_end):
-                self._shed(index)
+                robot.count_shed()
                 continue
-            reason = self._screen(index, sample) if tried else None  # the newest goes the whole way at once
+            reason = robot.undecodable(sample) if tried else None  # the newest goes the whole way at once
             if reason is not None:
                 screened, screened_out, refused = (sample, reason), screened_out + 1, True
             elif self._apply(index, sample, source != WILDCARD):
@@ -291,15 +302,15 @@ class CommandIntake:
             else:
                 refused = True
         if screened is not None:
-            self._refuse_screened(index, *screened, screened_out)
+            robot.refuse_undecodable(*screened, screened_out)
         self._turns[index].served(source, accepted, refused)
 
     def _apply(self, index: int, sample: zenoh.Sample, exact: bool) -> bool:
         """Take (or, put on a wildcard, refuse) one sample; True when it was accepted."""
         try:
             if exact:
-                return self._take(index, sample)
-            self._refuse(index, sample)
+                return self._robots[index].take_command(sample)
+            self._robots[index].refuse_wildcard(sample)
             return False
         except Exception:  # one robot's failure must not stop every robot's commands
             self._fail_log.exception("taking a command failed")

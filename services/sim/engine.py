@@ -323,7 +323,7 @@ class Engine:
                 return
         self.work.clear()  # before the queues are read: a request queued from here on sets it again
         for port in self._ports:
-            while port.requests.run_next(0.0, self._run_request):
+            while port.requests.run_next(self._run_request):
                 pass
 
     # --- the loop -------------------------------------------------------------------------------

@@ -39,8 +39,6 @@ class Link(Generic[T]):
     """The commands in flight to one robot, and what the link fault does to them."""
 
     def __init__(self) -> None:
-        self.faults: LinkFaults | None = None
-        """The link's faults now; None: a perfect link."""
         self.dropped = 0
         """Commands dropped since start."""
         self._delay = 0
@@ -51,7 +49,6 @@ class Link(Generic[T]):
 
     def set(self, faults: LinkFaults | None, seed: int) -> None:
         """Make `faults` the link's (None: a perfect link); the drops start over from `seed`."""
-        self.faults = faults
         self._delay = 0 if faults is None else faults.command_delay_steps
         self._drop = 0.0 if faults is None else faults.drop_probability
         self._rng = np.random.Generator(np.random.PCG64([seed, DROP_STREAM]))

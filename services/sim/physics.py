@@ -316,7 +316,7 @@ class Simulation:
         """
         robot = self.robot
         if checked is None or checked.robot is not robot:  # unchecked, or checked against a model since rebuilt
-            checked = self._checked(command)
+            checked = self.check_command(command)
         idx, clipped, kp, kd, n_clamped = checked.idx, checked.q, checked.kp, checked.kd, checked.clamped
         whole = None
         if isinstance(idx, slice):  # every joint: nothing of the held command stays, so it is made unlocked
@@ -349,13 +349,9 @@ class Simulation:
 
     def check_command(self, command: MotorCommand) -> Checked:
         """accept_command's checks alone: raise CommandError when `command` does not fit the robot, change
-        nothing; the result, given to accept_command, spares it checking again (world.py checks every
-        robot's command before it applies any)."""
-        return self._checked(command)
-
-    def _checked(self, command: MotorCommand) -> Checked:
-        """The robot checked against, the joints a command addresses, its targets clamped to the joint
-        limits, its gains, and how many targets were clamped."""
+        nothing. The result (the robot checked against, the joints a command addresses, its targets clamped to
+        the joint limits, its gains, how many targets were clamped), given to accept_command, spares it checking
+        again (world_endpoint.py checks every robot's command before it applies any)."""
         robot = self.robot
         # Numpy methods and ufuncs rather than np.any / np.clip (Python wrappers around them): on 29 values
         # the call overhead is the cost, and a world checks every robot's command of every advance.

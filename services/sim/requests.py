@@ -79,9 +79,6 @@ class Requests:
         self._wake = wake
         self._queue: queue.Queue[Request] = queue.Queue(max_pending)
         self.start_timeout_s = start_timeout_s
-        self.dropped = 0
-        """Requests answered without running (queue full, or waited too long)."""
-        self._count_lock = threading.Lock()  # callbacks and the loop thread both count
 
     def submit(self, request: Request) -> None:
         """From a callback: queue `request`, or answer it busy at once when too many wait."""
@@ -92,14 +89,14 @@ class Requests:
             self._not_run(request, f"busy: {self._queue.maxsize} ctl requests are waiting; nothing was done, "
                                    "send it again")
 
-    def run_next(self, timeout_s: float, run: Callable[[Request], CtlReply]) -> bool:
-        """On the loop thread: run (through `run`) the next request, waiting up to `timeout_s` for one.
+    def run_next(self, run: Callable[[Request], CtlReply]) -> bool:
+        """On the loop thread: run (through `run`) the next request, if one waits.
 
         Returns:
-            True when a request was taken (run or dropped), False when none came.
+            True when a request was taken (run or dropped), False when none waits.
         """
         try:
-            request = self._queue.get(timeout=timeout_s) if timeout_s > 0 else self._queue.get_nowait()
+            request = self._queue.get_nowait()
         except queue.Empty:
             return False
         waited = time.monotonic() - request.received
@@ -109,11 +106,6 @@ class Requests:
         else:
             self._finish(request, run_guarded(lambda: run(request), "a ctl request", self._busy))
         return True
-
-    def empty(self) -> bool:
-        """Whether no request waits: a hint, read without the queue's lock (the loop asks every step, for
-        each robot of a world, and a request submitted meanwhile is taken at the next step)."""
-        return not self._queue.queue
 
     def close(self, reason: str) -> None:
         """Answer whatever still waits, so no client hangs on a closing sim."""
@@ -125,8 +117,6 @@ class Requests:
             self._not_run(request, reason)
 
     def _not_run(self, request: Request, reason: str) -> None:
-        with self._count_lock:
-            self.dropped += 1
         self._finish(request, self._busy(reason))
 
     @staticmethod

@@ -94,13 +94,7 @@ class SimService:
         self.world_endpoint = WorldEndpoint(session, engine, world_file.robots,
                                             [robot.request_refusals for robot in robots]) if world_file else None
         engine.serve(robots, [self.world_endpoint] if self.world_endpoint else [])
-        self.intake = CommandIntake([robot.commands.handler for robot in robots], [robot.keys.motors for robot in robots],
-                                    take=lambda index, sample: robots[index].take_command(sample),
-                                    refuse=lambda index, sample: robots[index].refuse_wildcard(sample),
-                                    shed=lambda index: robots[index].count_shed(), every_sample=advances,
-                                    screen=lambda index, sample: robots[index].undecodable(sample),
-                                    refuse_screened=lambda index, sample, reason, count:
-                                        robots[index].refuse_undecodable(sample, reason, count))
+        self.intake = CommandIntake(robots, every_sample=advances)
         for robot in robots:  # alive/sim last: a client that saw it finds everything served, the world's verbs too
             robot.announce()
         if self.world_endpoint:

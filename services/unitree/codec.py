@@ -61,7 +61,6 @@ LOW_STATE_C = np.dtype({
     "formats": [("<u4", 2), "u1", "u1", "<u4", IMU_C, (MOTOR_STATE_C, NUM_MOTORS), ("u1", 40), ("<u4", 4), "<u4"],
     "offsets": [0, 8, 9, 12, 16, 72, 2032, 2072, 2088], "itemsize": 2092,
 })
-LOW_STATE_CDR_SIZE: Final = 2088
 
 
 class CodecError(ValueError):

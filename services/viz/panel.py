@@ -103,7 +103,6 @@ class PagePush(msgspec.Struct, tag="push", forbid_unknown_fields=True):
 PageMessage = PageTargets | PageCtl | PageMode | PagePlot | PageSelect | PageDrive | PageLoco | PageBand | PagePush
 DRIVING: Final = (PageTargets, PageCtl, PageMode, PageDrive, PageLoco, PageBand, PagePush)
 """What moves the robot or the sim: refused from a page that may only watch (a viewer's token)."""
-PAGE_CTL_VERBS: Final = ("reset", "pause", "resume", "step")
 
 
 @dataclass(frozen=True)
