@@ -37,6 +37,25 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
             client.close()
 
 
+FILE_SECONDS: dict[str, float] = {}
+"""Seconds spent per test file (setup, call and teardown of its tests), for the summary below."""
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    file = report.nodeid.split("::", 1)[0]
+    FILE_SECONDS[file] = FILE_SECONDS.get(file, 0.0) + report.duration
+
+
+def pytest_terminal_summary(terminalreporter) -> None:  # noqa: ANN001 - pytest's TerminalReporter
+    """Where the suite's time goes by file (issue 25's CI time): the 15 costliest files and their share."""
+    total = sum(FILE_SECONDS.values())
+    if total < 60:  # a run of a few tests: nothing to learn
+        return
+    terminalreporter.section("slowest 15 test files")
+    for file, seconds in sorted(FILE_SECONDS.items(), key=lambda item: item[1], reverse=True)[:15]:
+        terminalreporter.write_line(f"{seconds:8.1f}s {100 * seconds / total:5.1f}%  {file}")
+
+
 @pytest.fixture(scope="session")
 def official_g1_dir() -> Path:
     """Unitree's own g1_description folder (URDF + meshes), from env ZENSIM_OFFICIAL_G1.
