@@ -95,6 +95,7 @@ def test_sdk_low_level_example_drives_zensim(rig, zsession):
     # Stage 1: ramp every joint from where it is to zero over 3 s (the example's gains).
     cmd = new_low_cmd()
     t = 0.0
+    writes = 0
     start = time.monotonic()
     while t < 3.0:
         ratio = min(max(t / 3.0, 0.0), 1.0)
@@ -103,6 +104,7 @@ def test_sdk_low_level_example_drives_zensim(rig, zsession):
             m = cmd.motor_cmd[i]
             m.mode, m.tau, m.q, m.dq, m.kp, m.kd = 1, 0.0, (1.0 - ratio) * q0[i], 0.0, KP[i], KD[i]
         client.write(cmd)
+        writes += 1
         time.sleep(CONTROL_DT_S)
         t = time.monotonic() - start
     time.sleep(0.3)
@@ -122,6 +124,7 @@ def test_sdk_low_level_example_drives_zensim(rig, zsession):
         cmd.motor_cmd[RIGHT_ANKLE_PITCH].q = max_p * s
         cmd.motor_cmd[RIGHT_ANKLE_ROLL].q = -max_r * s
         client.write(cmd)
+        writes += 1
         state = client.latest_state()
         if state is not None:
             seen_pitch.append(state.motor_state[LEFT_ANKLE_PITCH].q)
@@ -129,7 +132,9 @@ def test_sdk_low_level_example_drives_zensim(rig, zsession):
     assert max(seen_pitch) > 0.6 * max_p and min(seen_pitch) < -0.6 * max_p, \
         f"the ankle did not swing: {min(seen_pitch):.3f}..{max(seen_pitch):.3f} rad"
 
-    report = status.wait(lambda s: s.lowcmd_forwarded > 1000, what="forwarded commands in the status")
+    # Most of what the example wrote is forwarded and counted (how many it wrote in 5 s depends on the machine:
+    # a fixed 1000 once failed a loaded CI machine).
+    report = status.wait(lambda s: s.lowcmd_forwarded > writes // 2, what=f"most of the {writes} commands forwarded")
     assert report.crc_errors == 0 and report.rejected == 0, report
     assert report.motion_switcher_requests >= 2
     # 500 Hz sim states give 500 Hz LowState_ (loosely: the machine is shared).
