@@ -125,7 +125,10 @@ def start_viz(start_service, robot_id: str | None = None) -> int:
 
 
 def check_aligned(samples: list[tuple[float, float, float | None]], applied: AppliedLog, what: str) -> None:
-    checked = [(t, target, applied.at(t)) for t, _q, target in samples if applied.at(t) is not None]
+    # From the first plotted target on: a replay's first state can reach the viewer before the state/applied
+    # of the same instant (different keys; once in CI: the sample at 0.02 s alone, 1 of 119, had no target yet).
+    first = next((i for i, (_t, _q, target) in enumerate(samples) if target is not None), len(samples))
+    checked = [(t, target, applied.at(t)) for t, _q, target in samples[first:] if applied.at(t) is not None]
     assert len(checked) >= 30, f"{what}: only {len(checked)} plotted samples under a command"
     wrong = [(t, target, want) for t, target, want in checked if target is None or abs(target - want) > 1e-9]
     assert not wrong, f"{what}: {len(wrong)} of {len(checked)} samples plot another target than the one " \
