@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 import uuid
 from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
@@ -35,6 +36,31 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
     if sdk is not None:
         for client in list(sdk.OPEN_CLIENTS):
             client.close()
+
+
+CONFIG: pytest.Config | None = None
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    global CONFIG
+    CONFIG = config
+
+
+SESSION_START = time.monotonic()
+STARTED_FILES: set[str] = set()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_runtest_logstart(nodeid: str, location: tuple) -> None:
+    """Each file's progress line starts with the minutes since the session began (after pytest's file name):
+    a CI log cut off by its time limit then shows where the time went."""
+    file = nodeid.split("::", 1)[0]
+    if file in STARTED_FILES or CONFIG is None:
+        return
+    STARTED_FILES.add(file)
+    reporter = CONFIG.pluginmanager.get_plugin("terminalreporter")
+    if reporter is not None and CONFIG.option.verbose == 0:  # the file-name lines (-q has none, -v its own)
+        reporter.write(f"[{(time.monotonic() - SESSION_START) / 60:4.1f} min] ")
 
 
 FILE_SECONDS: dict[str, float] = {}

@@ -184,7 +184,8 @@ def ctl(session, key: str, payload: dict | None = None, timeout_s: float = 10.0)
 def plain_client(endpoint: str, wait_for_router: bool = False):
     """A plain zenoh client session (no zensim code) connected to `endpoint`, multicast off.
 
-    With `wait_for_router` it waits for a router that is still starting instead of failing.
+    With `wait_for_router` it waits up to a minute for a router that is still starting instead of failing
+    at once (not for ever: a router that never comes must fail the test, not hang the run).
     """
     import json
 
@@ -195,7 +196,7 @@ def plain_client(endpoint: str, wait_for_router: bool = False):
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
     if wait_for_router:
-        conf.insert_json5("connect/timeout_ms", "-1")
+        conf.insert_json5("connect/timeout_ms", "60000")
     return zenoh.open(conf)
 
 

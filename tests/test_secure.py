@@ -250,7 +250,7 @@ def test_zensim_up_secured_runs_everything_and_operator_drives_through_the_bridg
     root = f"zensim/{robot_id}"
     try:
         conf = role_conf(secrets_dir, "operator", endpoint)
-        conf.insert_json5("connect/timeout_ms", "-1")
+        conf.insert_json5("connect/timeout_ms", "60000")  # a minute, not for ever
         with zenoh.open(conf) as operator:
             def alive() -> set[str]:
                 replies = operator.liveliness().get(f"{root}/alive/*", timeout=1.0)
@@ -288,7 +288,7 @@ def test_zensim_up_unitree_secured_shows_the_adapter_to_an_operator(secrets_dir:
     root = f"zensim/{robot_id}"
     try:
         conf = role_conf(secrets_dir, "operator", endpoint)
-        conf.insert_json5("connect/timeout_ms", "-1")
+        conf.insert_json5("connect/timeout_ms", "60000")  # a minute, not for ever
         with zenoh.open(conf) as operator:
             status = Latest(operator, f"{root}/state/unitree", UnitreeStatus)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import queue
 import re
 import signal
 import subprocess
@@ -57,16 +58,30 @@ class Loco:
         self.proc = subprocess.Popen([sys.executable, str(HERE / "sdk_loco.py"), str(domain)], stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, stderr=self._log, text=True)
         self.noise: list[str] = []
+        # Its lines come through a thread, so that a client stuck in DDS fails the wait instead of hanging it.
+        self._lines: queue.Queue[str] = queue.Queue()
+        self._reader = threading.Thread(target=self._read_lines, daemon=True)
+        self._reader.start()
         try:
-            assert self._reply() == {"ready": True}
+            assert self._reply(60) == {"ready": True}
         except BaseException:
             self.proc.kill()
             self.close()
             raise
 
-    def _reply(self) -> dict:
+    def _read_lines(self) -> None:
+        for line in self.proc.stdout:
+            self._lines.put(line)
+        self._lines.put("")
+
+    def _reply(self, timeout_s: float = 30) -> dict:
+        """The next JSON line; its SDK calls time out after 10 s, so 30 s without one means it hangs."""
+        deadline = time.monotonic() + timeout_s
         while True:
-            line = self.proc.stdout.readline()
+            try:
+                line = self._lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                raise AssertionError(f"sdk_loco.py said nothing for {timeout_s} s") from None
             assert line, "sdk_loco.py exited"
             if line.startswith("{"):
                 return json.loads(line)
@@ -79,10 +94,15 @@ class Loco:
 
     def close(self) -> None:
         self.proc.stdin.close()
-        self.proc.stdout.close()
         try:
             self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(10)
+            raise
         finally:
+            self._reader.join(5)  # at the exit's end of file: closing stdout under its read would raise there
+            self.proc.stdout.close()
             self._log.close()
         if self.noise:
             print(f"\nthe SDK said: {''.join(self.noise)}")
