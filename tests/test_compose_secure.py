@@ -29,6 +29,9 @@ from docker_stack import BASE_IMAGE, SERVICES, ComposeStack, DockerUnavailable, 
 from support import Latest, wait_for
 from zensim.schemas import JointState, SimStatus
 
+# The first test builds the images (base up to 10 min, app up to 20 min by the limits below): the suite's
+# 15-minute bound per test (pyproject.toml) would cut a slow first build short.
+pytestmark = pytest.mark.timeout(2700)
 ROBOT = "g1"
 IMAGE = "zensim:secure-test"
 IMAGE_UID = 10001

@@ -26,6 +26,9 @@ from docker_stack import BASE_IMAGE, SERVICES, ComposeStack, DockerUnavailable, 
 from support import Latest, plain_client, wait_for
 from zensim.schemas import JointState
 
+# The first test builds the images (base up to 10 min, app up to 20 min by the limits below): the suite's
+# 15-minute bound per test (pyproject.toml) would cut a slow first build short.
+pytestmark = pytest.mark.timeout(2700)
 ROBOT = "g1"
 IMAGE = "zensim:compose-test"  # not zensim:latest: a developer's own image stays as it is
 TIMINGS: dict[str, float] = {}

@@ -19,6 +19,10 @@ from support import REPO, Latest, ctl
 from test_ros2_process import DOMAIN, ELBOW, KEYS, Ros2Stack, elbow_reaches, newest_status, pose_with
 from zensim.schemas import JointState
 
+# Run alone (without scripts/test) the probe may build cold, up to 30 min by its limit below: the suite's
+# 15-minute bound per test (pyproject.toml) would cut it short.
+pytestmark = pytest.mark.timeout(2700)
+
 
 @pytest.fixture(scope="module")
 def probe() -> Path:
