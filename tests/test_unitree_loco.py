@@ -289,8 +289,10 @@ def test_loco_client_squat_to_stand_walk_stop_turn_damp(lockstep_stack):
         assert hind == [0, 0] and left > 50 and right > 50, (left, right, hind)
         assert 0.75 * G1_WEIGHT_N < left + right < 1.25 * G1_WEIGHT_N, (left, right)
         # Turns in place: 0.3 rad/s for at most 5 s.
-        before_turn = stack.odom.value
         loco.call("Move", 0, 0, 0.3, True)
+        # Counted from the reply (the sport service forwards the turn before it answers): under lockstep the sim
+        # runs on while a request travels, and once in CI that was over a second of the 5 s (0.70 rad turned).
+        before_turn = stack.odom.value
         turned = stack.run_until(before_turn.sim_time_s + 5.0)
         loco.call("StopMove")
         turn = (yaw_of(turned.quat_wxyz) - yaw_of(before_turn.quat_wxyz) + math.pi) % (2 * math.pi) - math.pi
