@@ -140,11 +140,9 @@ def _route(session: zenoh.Session, settings: RouterSettings, stop: threading.Eve
     tokens = [session.liveliness().declare_token(Keys(settings.robot_id).alive("router")),
               session.liveliness().declare_token(topics.ROUTER_ALIVE.full_key())]
     logger.info("router up, listening on %s", ", ".join(listening))
-    # Woken twice a second, not parked in one wait, and no token undeclared by hand: in two CI runs `zensim up`
-    # killed a router still running 10 s after its SIGTERM (exit 1); one log lacked the router's "SIGTERM
-    # received" line, the other its "router stopped" line, after the two undeclares that were here. A pending
-    # handler runs as soon as the main thread runs again, and the tokens go with the session, which serve()
-    # closes in bounded time.
+    # No token undeclared by hand: the tokens go with the session, which serve() closes in bounded time.
+    # (Three CI runs saw `zensim up` kill this router 10 s after its SIGTERM. The cause was the signal handler,
+    # which set `stop` on this thread while the thread held the event's lock: common/shutdown.py.)
     while not stop.wait(0.5):
         pass
     logger.info("router stopped (%d tokens go with the session)", len(tokens))
