@@ -143,7 +143,6 @@ def _route(session: zenoh.Session, settings: RouterSettings, stop: threading.Eve
     # No token undeclared by hand: the tokens go with the session, which serve() closes in bounded time.
     # (Three CI runs saw `zensim up` kill this router 10 s after its SIGTERM. The cause was the signal handler,
     # which set `stop` on this thread while the thread held the event's lock: common/shutdown.py.)
-    while not stop.wait(0.5):
-        pass
+    stop.wait()
     logger.info("router stopped (%d tokens go with the session)", len(tokens))
     return 0

@@ -25,46 +25,47 @@ connecting = threading.Event()
 """Set while a zenoh session is being opened (see common.session.open_session)."""
 
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-_current_stop: list[threading.Event] = []
-"""The event the latest stop_on_signals() returned: the one the watcher sets."""
+_stop: threading.Event | None = None
+"""The event the latest stop_on_signals() returned: the one a signal sets."""
+_wakeup: socket.socket | None = None
+"""The socket Python's C handler writes each signal's number to; open for the life of the process."""
 
 
 def stop_on_signals() -> threading.Event:
     """Catch SIGINT and SIGTERM (Docker's stop) and return the event they set. Call from the main thread."""
-    stop = threading.Event()
-    if not _current_stop:
+    global _stop
+    _stop = threading.Event()
+    if _wakeup is None:
         _start_watcher()
-        _current_stop.append(stop)
-    else:
-        _current_stop[0] = stop
-    return stop
+    return _stop
 
 
 def _start_watcher() -> None:
-    reader, writer = socket.socketpair()
-    writer.setblocking(False)  # set_wakeup_fd requires it: the C handler must never block
-    signal.set_wakeup_fd(writer.fileno(), warn_on_full_buffer=False)
+    global _wakeup
+    reader, _wakeup = socket.socketpair()
+    _wakeup.setblocking(False)  # set_wakeup_fd requires it: the C handler must never block
+    signal.set_wakeup_fd(_wakeup.fileno(), warn_on_full_buffer=False)
     for signum in _STOP_SIGNALS:
         # A Python handler must be installed for the C handler to write to the socket; it does nothing
         # itself (see the module's docstring for why).
         signal.signal(signum, _ignore_here)
-    threading.Thread(target=_watch, args=(reader, writer), name="zensim-signals", daemon=True).start()
+    threading.Thread(target=_watch, args=(reader,), name="zensim-signals", daemon=True).start()
 
 
 def _ignore_here(_signum: int, _frame: object) -> None:
     """The Python-level handler: the watcher thread acts on the signal."""
 
 
-def _watch(reader: socket.socket, _writer: socket.socket) -> None:
-    # `_writer` stays referenced here so that its file descriptor stays open as long as the watcher runs.
-    while True:
-        for signum in reader.recv(64):
+def _watch(reader: socket.socket) -> None:
+    while signums := reader.recv(64):
+        for signum in signums:
             if signum in _STOP_SIGNALS:
                 _on_stop_signal(signal.Signals(signum))
 
 
 def _on_stop_signal(signum: signal.Signals) -> None:
-    stop = _current_stop[0]
+    stop = _stop
+    assert stop is not None  # set before the watcher starts
     if stop.is_set():
         logger.warning("second %s: exiting now", signum.name)
         os._exit(1)
